@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# tumblebot's one entry point for people and CI.
+#
+#   ./dev.sh demo   set up .venv (simulation extras, no torch) and run the main job
+#   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types and all tests
+#   ./dev.sh setup  set up .venv with everything, run nothing
+#
+# Works on a fresh Debian/Ubuntu machine with Python 3.11: missing system packages are
+# installed with apt-get when running as root (as CI does), otherwise named.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+VENV=.venv
+PYTHON=${PYTHON:-}
+if [[ -z "$PYTHON" ]]; then
+    for candidate in python3.11 python3; do
+        if command -v "$candidate" >/dev/null 2>&1; then PYTHON=$candidate; break; fi
+    done
+fi
+[[ -n "$PYTHON" ]] || { echo "dev.sh: Python 3.11 is required (apt-get install python3.11)" >&2; exit 1; }
+
+apt_install() {
+    # apt_install PKG...: install Debian packages that are missing (root only).
+    local missing=()
+    for pkg in "$@"; do dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg"); done
+    [[ ${#missing[@]} -eq 0 ]] && return 0
+    if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null; then
+        echo "dev.sh: installing ${missing[*]} with apt-get"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+    else
+        echo "dev.sh: please install: sudo apt-get install ${missing[*]}" >&2
+        exit 1
+    fi
+}
+
+ensure_venv() {
+    # ensure_venv EXTRAS: create .venv if needed and install tumblebot[EXTRAS] editable.
+    if ! "$PYTHON" -c 'import venv, ensurepip' >/dev/null 2>&1; then
+        apt_install "python3-venv"
+    fi
+    if [[ ! -x $VENV/bin/python ]]; then
+        echo "dev.sh: creating $VENV with $("$PYTHON" --version)"
+        "$PYTHON" -m venv "$VENV"
+        "$VENV/bin/python" -m pip install -q --upgrade pip
+    fi
+    echo "dev.sh: installing tumblebot[$1] into $VENV"
+    # strict editable mode: an import-path tree mypy can follow; re-run after adding modules.
+    "$VENV/bin/python" -m pip install -q -e ".[$1]" --config-settings editable_mode=strict
+}
+
+cmd=${1:-help}
+case "$cmd" in
+    demo)
+        ensure_venv "sim"
+        shift
+        exec "$VENV/bin/tumblebot" demo "$@"
+        ;;
+    setup)
+        ensure_venv "train,dev"
+        ;;
+    test)
+        ensure_venv "train,dev"
+        shift
+        echo "dev.sh: ruff"
+        "$VENV/bin/ruff" check .
+        echo "dev.sh: mypy"
+        "$VENV/bin/mypy"
+        echo "dev.sh: pytest"
+        # pytest exits 5 when it collects nothing; that is a failure here too.
+        "$VENV/bin/python" -m pytest "$@"
+        ;;
+    *)
+        sed -n '2,9p' "$0"
+        exit 2
+        ;;
+esac

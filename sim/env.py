@@ -1,0 +1,336 @@
+"""The tumbler environment: one base class, tasks differ only by their :class:`TaskSpec`.
+
+Observation (``OBS_FIELDS``): base position (3, m), base orientation quaternion
+(``qx, qy, qz, qw``), and the last command of each motor (−1, 0, +1). Action:
+``MultiDiscrete([3, 3])``, per motor 0 = full reverse, 1 = stop, 2 = full forward, motor
+order ``(right, left)`` (right = the leg on the body's +x side). One step is 1 s of
+simulated time (240 physics substeps); an episode is 20 steps, then it is truncated.
+
+Reward per step (training shaping; every term is in ``info``):
+``state_weight · R(s_t) + progress_weight · (Φ(s_t) − Φ(s_{t−1}))`` with ``R`` the thesis
+reward of the state and ``Φ`` the task's progress measure. The evaluation metric is the
+thesis reward of the final state, reported as ``info["final_R"]`` on the last step.
+
+Motor models (``motor_model``):
+
+* ``"dc"`` (default): the servo as a DC gear-motor, ``τ = ke·(u·V − ke·ω)/R``. It is
+  applied each substep through a velocity motor whose target is the free speed and whose
+  force limit is the DC torque at the current speed; that reproduces the torque–speed
+  line exactly and stays stable for any leg inertia (an explicit viscous term does not).
+* ``"velocity"``: a velocity controller at the free speed with the stall torque as
+  force cap, the common approximation (cheaper: set once per command).
+
+"Stop" holds the leg with a velocity-zero motor limited to the back-EMF braking torque
+plus ``hold_torque`` (gearbox friction and the servo's neutral-band braking).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from tumblebot.sim import constants as C
+from tumblebot.sim.design import Design
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.robot import RobotModel, build_robot
+from tumblebot.sim.tasks import TaskSpec, get_task
+from tumblebot.sim.terrain import TerrainConfig
+from tumblebot.sim.world import Scene, build_scene
+
+OBS_FIELDS: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
+OBS_INDEX: dict[str, int] = {name: i for i, name in enumerate(OBS_FIELDS)}
+ACTION_LABELS: tuple[str, str, str] = ("reverse", "stop", "forward")
+MotorModel = Literal["dc", "velocity"]
+
+#: The design used when none is given and designs are not randomised: the thesis's ξ = 3 robot.
+DEFAULT_DESIGN = Design(0.292, 0.129, 0.098, 0.136)
+_POSITION_LIMIT = 100.0
+
+
+def _rel(rng: np.random.Generator, sigma: float, size: int | None = None) -> Any:
+    """``1 + N(0, σ)`` clipped to ±3σ; always consumes the same number of draws."""
+    draw = rng.standard_normal(size)
+    return 1.0 + sigma * np.clip(draw, -3.0, 3.0)
+
+
+class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A two-legged tumbling robot performing one of the four thesis tasks.
+
+    Args:
+        task: task short name (``nav-flat``, ``nav-terrain``, ``distance-flat``,
+            ``incline``) or Gymnasium id.
+        design: a fixed design; ``None`` draws one per episode when
+            ``randomization.design`` is on, else uses :data:`DEFAULT_DESIGN`.
+            ``reset(options={"design": w})`` overrides it for one episode.
+        randomization: what varies between episodes (:class:`Randomization`).
+        motor_model: ``"dc"`` or ``"velocity"`` (see module docs).
+        episode_steps: steps per episode (thesis: 20).
+        step_seconds: simulated seconds per step (thesis: 1).
+        physics_hz: physics substeps per second (1/240 s keeps penetration ≈ 7 mm).
+        start_distance: ``(min, max)`` start distance from the origin for navigation, m.
+        state_weight: weight of ``R(s_t)`` in the per-step reward.
+        progress_weight: weight of the progress term in the per-step reward.
+        hold_torque: holding torque of a stopped servo beyond back-EMF braking, N·m.
+        settle_seconds: simulated time the robot settles at spawn before step 0.
+        terrain: Perlin tile parameters for ``nav-terrain``.
+        render_mode: ``"rgb_array"`` (current frame) or ``"rgb_array_list"`` (frames at
+            ``render_fps`` of simulated time since reset), both headless.
+        render_size: frame ``(width, height)`` in pixels.
+    """
+
+    metadata = {"render_modes": ["rgb_array", "rgb_array_list"], "render_fps": 10}
+
+    def __init__(
+        self,
+        task: str = "nav-flat",
+        design: Design | None = None,
+        randomization: Randomization | None = None,
+        motor_model: MotorModel = "dc",
+        episode_steps: int = 20,
+        step_seconds: float = 1.0,
+        physics_hz: int = 240,
+        start_distance: tuple[float, float] = (0.5, 2.0),
+        state_weight: float = 1.0,
+        progress_weight: float = 5.0,
+        hold_torque: float = 0.3,
+        settle_seconds: float = 0.5,
+        terrain: TerrainConfig | None = None,
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = (320, 240),
+    ) -> None:
+        super().__init__()
+        self.task: TaskSpec = get_task(task)
+        if motor_model not in ("dc", "velocity"):
+            raise SimError(f"motor_model={motor_model!r} must be 'dc' or 'velocity'")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise SimError(f"render_mode={render_mode!r} must be one of {self.metadata['render_modes']}")
+        if episode_steps < 1 or step_seconds <= 0 or physics_hz < 60:
+            raise SimError("episode_steps >= 1, step_seconds > 0 and physics_hz >= 60 are required")
+        lo, hi = start_distance
+        if not 0.0 <= lo <= hi:
+            raise SimError(f"start_distance={start_distance} must satisfy 0 <= min <= max")
+        self.fixed_design = design
+        self.randomization = randomization if randomization is not None else Randomization()
+        self.motor_model: MotorModel = motor_model
+        self.episode_steps = episode_steps
+        self.physics_hz = physics_hz
+        self.substeps = round(step_seconds * physics_hz)
+        self.start_distance = (float(lo), float(hi))
+        self.state_weight = state_weight
+        self.progress_weight = progress_weight
+        self.hold_torque = hold_torque
+        self.settle_substeps = round(settle_seconds * physics_hz)
+        self.terrain_config = terrain if terrain is not None else TerrainConfig()
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self._frame_interval = max(1, physics_hz // int(self.metadata["render_fps"]))
+
+        self.action_space = spaces.MultiDiscrete([3, 3])
+        low = np.array([-_POSITION_LIMIT] * 3 + [-1.0] * 4 + [-1.0] * 2, dtype=np.float32)
+        self.observation_space = spaces.Box(low=low, high=-low, dtype=np.float32)
+
+        import pybullet as p
+
+        self._p = p
+        self._client = p.connect(p.DIRECT)
+        self._robot = -1
+        self._scene: Scene | None = None
+        self.design: Design = design if design is not None else DEFAULT_DESIGN
+        self.model: RobotModel | None = None
+        self._command = np.zeros(2)
+        self._speed = np.full(2, C.LEG_SPEED)
+        self._step = 0
+        self._potential = 0.0
+        self._motor_rng = np.random.default_rng(0)
+        self._frames: list[np.ndarray] = []
+        self._substep_count = 0
+
+    # ------------------------------------------------------------------ episode set-up
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        options = options or {}
+        key = int(self.np_random.integers(2**63))
+        design_ss, world_ss, motor_ss = np.random.SeedSequence(key).spawn(3)
+        design_rng = np.random.default_rng(design_ss)
+        world_rng = np.random.default_rng(world_ss)
+        self._motor_rng = np.random.default_rng(motor_ss)
+        rnd = self.randomization
+
+        self.design = self._choose_design(options.get("design"), design_rng)
+        # World draws: a fixed count in a fixed order, whatever the design (common random numbers).
+        mass_scale = _rel(world_rng, rnd.mass_rel_sigma)
+        leg_mass_scale = _rel(world_rng, rnd.mass_rel_sigma)
+        inertia_scale = _rel(world_rng, rnd.inertia_rel_sigma, 3)
+        friction = rnd.friction * float(_rel(world_rng, rnd.friction_rel_sigma))
+        leg_draw = world_rng.uniform(-math.pi, math.pi, 2)
+        roll_draw = int(world_rng.integers(4))
+        yaw_draw = float(world_rng.uniform(0.0, 2 * math.pi))
+        yaw_jitter = float(world_rng.uniform(-0.1, 0.1))
+        dist_draw = float(world_rng.uniform(*self.start_distance))
+        dir_draw = float(world_rng.uniform(0.0, 2 * math.pi))
+        terrain_rng = np.random.default_rng(world_rng.integers(2**63))
+
+        p, c = self._p, self._client
+        p.resetSimulation(physicsClientId=c)
+        p.setGravity(0.0, 0.0, -C.GRAVITY, physicsClientId=c)
+        p.setPhysicsEngineParameter(fixedTimeStep=1.0 / self.physics_hz, numSubSteps=1,
+                                    deterministicOverlappingPairs=1, physicsClientId=c)
+        self._scene = build_scene(c, self.task, terrain_rng, self.terrain_config, friction)
+
+        self.model = RobotModel.from_design(self.design).scaled(
+            body_mass=float(mass_scale), body_inertia=tuple(inertia_scale.tolist()),
+            leg_mass=float(leg_mass_scale))
+        leg_angles = (float(leg_draw[0]), float(leg_draw[1])) if rnd.leg_angles else (0.0, 0.0)
+        roll = roll_draw * math.pi / 2 if rnd.start_pose else 0.0
+        if self.task.start == "ring":
+            xy = (dist_draw * math.cos(dir_draw), dist_draw * math.sin(dir_draw))
+            yaw = yaw_draw
+        else:
+            xy = (0.0, 0.0)
+            yaw = math.pi / 2 + (yaw_jitter if rnd.start_pose else 0.0)
+        orientation = p.getQuaternionFromEuler([roll, 0.0, yaw])
+        depth = self._lowest_point(orientation, leg_angles)
+        reach = max(self.design.x, self.design.y, self.design.z, self.design.l)
+        z = self._scene.ground_height(xy[0], xy[1], reach) + depth + 0.003
+        self._robot = build_robot(c, self.model, (xy[0], xy[1], z), orientation, leg_angles, friction)
+
+        self._command = np.zeros(2)
+        self._speed = np.full(2, C.LEG_SPEED)
+        self._frames = []
+        self._substep_count = 0
+        self._set_motors(self._command)
+        for _ in range(self.settle_substeps):
+            self._substep()
+        self._step = 0
+        position, _, _ = self._state()
+        self._potential = self.task.potential(position)
+        self._capture_frame(force=True)
+        return self._observation(), {"design": self.design.as_tuple(), "step": 0}
+
+    def _choose_design(self, requested: Any, rng: np.random.Generator) -> Design:
+        drawn = Design.sample(rng)  # always drawn, so the other streams never shift
+        if requested is not None:
+            if isinstance(requested, Design):
+                return requested
+            return Design.from_sequence(list(requested))
+        if self.fixed_design is not None:
+            return self.fixed_design
+        return drawn if self.randomization.design else DEFAULT_DESIGN
+
+    def _lowest_point(self, orientation: tuple[float, ...], leg_angles: tuple[float, float]) -> float:
+        """Depth of the robot's lowest point below its centre, for a given pose."""
+        assert self.model is not None
+        rot = np.array(self._p.getMatrixFromQuaternion(orientation)).reshape(3, 3)
+        hx, hy, hz = self.model.half_extents
+        corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        points = np.vstack([corners, np.array(self.model.leg_tips(leg_angles))]) @ rot.T
+        return float(-points[:, 2].min())
+
+    # ------------------------------------------------------------------------ stepping
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._scene is None:
+            raise SimError("call reset() before step()")
+        act = np.asarray(action).reshape(-1)
+        if act.shape != (2,) or not self.action_space.contains(act.astype(np.int64)):
+            raise SimError(f"action {action!r} must be two integers in {{0, 1, 2}}")
+        new_command = act.astype(float) - 1.0
+        rnd = self.randomization
+        noise = self._motor_rng.standard_normal(2)
+        latency = self._motor_rng.uniform(0.0, 1.0)
+        new_speed = np.maximum(C.LEG_SPEED + rnd.motor_speed_sigma * noise, 0.0)
+        lat_lo, lat_hi = rnd.latency
+        delay = min(round((lat_lo + (lat_hi - lat_lo) * latency) * self.physics_hz), self.substeps)
+
+        for k in range(self.substeps):
+            if k == delay:
+                self._command, self._speed = new_command, new_speed
+                self._set_motors(self._command)
+            elif self.motor_model == "dc":
+                self._set_motors(self._command)
+            self._substep()
+        self._step += 1
+
+        position, velocity, _ = self._state()
+        r_state = self.task.state_reward(position, velocity)
+        potential = self.task.potential(position)
+        progress = potential - self._potential
+        self._potential = potential
+        reward = self.state_weight * r_state + self.progress_weight * progress
+        truncated = self._step >= self.episode_steps
+        info: dict[str, Any] = {
+            "R": r_state,
+            "reward_state": self.state_weight * r_state,
+            "reward_progress": self.progress_weight * progress,
+            "distance_to_origin": math.hypot(position[0], position[1]),
+            "step": self._step,
+            "design": self.design.as_tuple(),
+        }
+        if truncated:
+            info["final_R"] = r_state
+            info["final_position"] = position
+        return self._observation(), float(reward), False, truncated, info
+
+    def _substep(self) -> None:
+        self._p.stepSimulation(physicsClientId=self._client)
+        self._substep_count += 1
+        if self.render_mode == "rgb_array_list" and self._substep_count % self._frame_interval == 0:
+            self._capture_frame(force=True)
+
+    def _set_motors(self, command: np.ndarray) -> None:
+        """Apply the motor model for the current command (see module docs)."""
+        p, c = self._p, self._client
+        targets = command * self._speed
+        if self.motor_model == "dc":
+            omega = np.array([s[1] for s in p.getJointStates(self._robot, [0, 1], physicsClientId=c)])
+            forces = np.abs(C.MOTOR_DAMPING * (targets - omega))
+            forces = np.where(command == 0.0, forces + self.hold_torque, forces)
+        else:
+            forces = np.where(command == 0.0, C.STALL_TORQUE, C.STALL_TORQUE)
+        p.setJointMotorControlArray(self._robot, [0, 1], p.VELOCITY_CONTROL, targetVelocities=targets.tolist(),
+                                    forces=forces.tolist(), physicsClientId=c)
+
+    def _state(self) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, ...]]:
+        p, c = self._p, self._client
+        pos, orn = p.getBasePositionAndOrientation(self._robot, physicsClientId=c)
+        vel, _ = p.getBaseVelocity(self._robot, physicsClientId=c)
+        return tuple(pos), tuple(vel), tuple(orn)  # type: ignore[return-value]
+
+    def _observation(self) -> np.ndarray:
+        pos, _, orn = self._state()
+        obs = np.array([*pos, *orn, *self._command], dtype=np.float32)
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+
+    # ----------------------------------------------------------------------- rendering
+    def _capture_frame(self, force: bool = False) -> None:
+        if self.render_mode == "rgb_array_list" and force:
+            self._frames.append(self._render_frame())
+
+    def _render_frame(self) -> np.ndarray:
+        p, c = self._p, self._client
+        width, height = self.render_size
+        target, _, _ = self._state()
+        view = p.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=target, distance=1.1, yaw=35.0,
+                                                   pitch=-25.0, roll=0.0, upAxisIndex=2)
+        proj = p.computeProjectionMatrixFOV(fov=60.0, aspect=width / height, nearVal=0.02, farVal=20.0)
+        _, _, rgba, _, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                                            physicsClientId=c)
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    def render(self) -> Any:
+        if self.render_mode == "rgb_array":
+            return self._render_frame()
+        if self.render_mode == "rgb_array_list":
+            frames, self._frames = self._frames, []
+            return frames
+        return None
+
+    def close(self) -> None:
+        if self._client >= 0:
+            self._p.disconnect(physicsClientId=self._client)
+            self._client = -1

@@ -1,0 +1,14 @@
+"""Shared fixtures. PyBullet prints its build time on import; tests do not care."""
+
+from __future__ import annotations
+
+import pytest
+
+from tumblebot.sim.design import Design
+
+TASK_NAMES = ("nav-flat", "nav-terrain", "distance-flat", "incline")
+
+
+@pytest.fixture
+def xi3_robot() -> Design:
+    return Design(0.292, 0.129, 0.098, 0.136)
