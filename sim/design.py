@@ -13,7 +13,6 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
 from tumblebot.sim.errors import DesignError
 
 PARAMETERS: tuple[str, ...] = ("x", "y", "z", "l")

@@ -32,7 +32,6 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
@@ -83,7 +82,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         render_size: frame ``(width, height)`` in pixels.
     """
 
-    metadata = {"render_modes": ["rgb_array", "rgb_array_list"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "rgb_array_list"], "render_fps": 10}  # noqa: RUF012 (gymnasium API)
 
     def __init__(
         self,
@@ -132,6 +131,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
 
         self.action_space = spaces.MultiDiscrete([3, 3])
         low = np.array([-_POSITION_LIMIT] * 3 + [-1.0] * 4 + [-1.0] * 2, dtype=np.float32)
+        self._obs_low, self._obs_high = low, -low
         self.observation_space = spaces.Box(low=low, high=-low, dtype=np.float32)
 
         import pybullet as p
@@ -299,12 +299,12 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         p, c = self._p, self._client
         pos, orn = p.getBasePositionAndOrientation(self._robot, physicsClientId=c)
         vel, _ = p.getBaseVelocity(self._robot, physicsClientId=c)
-        return tuple(pos), tuple(vel), tuple(orn)  # type: ignore[return-value]
+        return (pos[0], pos[1], pos[2]), (vel[0], vel[1], vel[2]), tuple(orn)
 
     def _observation(self) -> np.ndarray:
         pos, _, orn = self._state()
         obs = np.array([*pos, *orn, *self._command], dtype=np.float32)
-        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+        return np.clip(obs, self._obs_low, self._obs_high)
 
     # ----------------------------------------------------------------------- rendering
     def _capture_frame(self, force: bool = False) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-
 from tumblebot.sim.errors import UnknownGaitError
 
 Action = tuple[int, int]

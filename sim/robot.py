@@ -14,7 +14,6 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel
@@ -24,6 +23,11 @@ LEG_GAP = 0.002  #: clearance between a side plate and its leg, m
 #: Both joints turn about body −x, so "forward" on both legs rolls the robot toward body
 #: +y: in the distance and incline tasks (start yaw 90°) that is world +x.
 JOINT_AXIS: tuple[float, float, float] = (-1.0, 0.0, 0.0)
+
+
+def _triple(values: np.ndarray) -> tuple[float, float, float]:
+    a, b, c = (float(v) for v in values)
+    return (a, b, c)
 
 
 @dataclass(frozen=True)
@@ -48,9 +52,9 @@ class RobotModel:
         return cls(
             design=design,
             body_mass=mass_model.body_mass(design),
-            body_inertia=tuple(mass_model.body_inertia(design).tolist()),  # type: ignore[arg-type]
+            body_inertia=_triple(mass_model.body_inertia(design)),
             leg_mass=mass_model.leg_mass(design),
-            leg_inertia=tuple(mass_model.leg_inertia(design).tolist()),  # type: ignore[arg-type]
+            leg_inertia=_triple(mass_model.leg_inertia(design)),
             leg_width=mass_model.leg_width,
             leg_thickness=mass_model.leg_thickness,
         )
@@ -58,9 +62,9 @@ class RobotModel:
     def scaled(self, body_mass: float = 1.0, body_inertia: tuple[float, float, float] = (1.0, 1.0, 1.0),
                leg_mass: float = 1.0) -> RobotModel:
         """A copy with masses and inertias multiplied (domain randomisation)."""
-        bi = tuple(float(a * b) for a, b in zip(self.body_inertia, body_inertia, strict=True))
-        li = tuple(float(a * leg_mass) for a in self.leg_inertia)
-        return replace(self, body_mass=self.body_mass * body_mass, body_inertia=bi,  # type: ignore[arg-type]
+        bi = _triple(np.multiply(self.body_inertia, body_inertia))
+        li = _triple(np.multiply(self.leg_inertia, leg_mass))
+        return replace(self, body_mass=self.body_mass * body_mass, body_inertia=bi,
                        leg_mass=self.leg_mass * leg_mass, leg_inertia=li)
 
     @property
@@ -84,7 +88,7 @@ class RobotModel:
         """Leg tips in the body frame for the given joint angles (0 = leg along body
         +z, positive angles about :data:`JOINT_AXIS`)."""
         l = self.design.l  # noqa: E741
-        return tuple(  # type: ignore[return-value]
+        return tuple(
             (j[0], l * float(np.sin(a)), l * float(np.cos(a)))
             for j, a in zip(self.joint_positions(), leg_angles, strict=True)
         )
@@ -134,13 +138,14 @@ def build_robot(
         linkJointAxis=[list(JOINT_AXIS)] * 2,
         physicsClientId=client,
     )
-    p.changeDynamics(body, -1, localInertiaDiagonal=model.body_inertia, lateralFriction=lateral_friction,
-                     linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
     for j in range(2):
         p.changeDynamics(body, j, localInertiaDiagonal=model.leg_inertia, lateralFriction=lateral_friction,
-                         linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
-                         maxJointVelocity=50.0, physicsClientId=client)
+                         jointDamping=0.0, maxJointVelocity=50.0, physicsClientId=client)
         p.resetJointState(body, j, leg_angles[j], 0.0, physicsClientId=client)
+    # The base last: changeDynamics(link, linearDamping=…) on a link overwrote the base's
+    # inertia in PyBullet 3.2.7 (regression test: test_robot.py).
+    p.changeDynamics(body, -1, localInertiaDiagonal=model.body_inertia, lateralFriction=lateral_friction,
+                     linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
     p.setJointMotorControlArray(body, [0, 1], p.VELOCITY_CONTROL, forces=[0.0, 0.0], physicsClientId=client)
     return int(body)
 

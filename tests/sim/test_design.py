@@ -2,7 +2,6 @@ import math
 
 import numpy as np
 import pytest
-
 from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.errors import DesignError
 
