@@ -37,7 +37,7 @@ def run_demo(out: TextIO, video_dir: Path | None = None, seed: int = 3) -> None:
             target = video_dir / f"{name}.gif"
             write_animation(res.frames, target)
             out.write(f"{'':<14} wrote {target}\n")
-    out.write("\n(Scripted gaits are open-loop baselines; trained policies come with `tumblebot train`.)\n\n")
+    out.write("\n(Scripted gaits are open-loop baselines: the bar a trained policy has to clear.)\n\n")
     out.write("Power model against thesis Table 3.1 (e in W/m)\n")
     out.write(f"{'ξ':<4} {'x':>6} {'y':>6} {'z':>6} {'l':>6} {'mass kg':>8} {'e ours':>7} {'thesis':>7} {'diff':>7}\n")
     for key, w in THESIS_ROBOTS.items():

@@ -35,6 +35,7 @@ from gymnasium import spaces
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.pb import pybullet
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.robot import RobotModel, build_robot
 from tumblebot.sim.tasks import TaskSpec, get_task
@@ -134,7 +135,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self._obs_low, self._obs_high = low, -low
         self.observation_space = spaces.Box(low=low, high=-low, dtype=np.float32)
 
-        import pybullet as p
+        p = pybullet()
 
         self._p = p
         self._client = p.connect(p.DIRECT)

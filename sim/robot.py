@@ -17,6 +17,7 @@ import numpy as np
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel
+from tumblebot.sim.pb import pybullet
 
 LEG_NAMES: tuple[str, str] = ("leg_right", "leg_left")  #: joint order: +x side, −x side
 LEG_GAP = 0.002  #: clearance between a side plate and its leg, m
@@ -107,7 +108,7 @@ def build_robot(
     Leg angles are measured about :data:`JOINT_AXIS` from the body's +z axis. Both joints get their
     default velocity motors switched off; the environment drives them.
     """
-    import pybullet as p
+    p = pybullet()
 
     body_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=model.half_extents, physicsClientId=client)
     body_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=model.half_extents,

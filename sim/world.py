@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from tumblebot.sim.pb import pybullet
 from tumblebot.sim.tasks import TaskSpec
 from tumblebot.sim.terrain import TerrainConfig, height_at, tile_heightfield
 
@@ -38,7 +39,7 @@ class Scene:
 def build_scene(client: int, task: TaskSpec, rng: np.random.Generator, terrain: TerrainConfig,
                 friction: float) -> Scene:
     """Create the task's static geometry in ``client`` (after ``resetSimulation``)."""
-    import pybullet as p
+    p = pybullet()
 
     plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
     # A thin box as the plane's visual (PyBullet has no default visual for planes).

@@ -1,0 +1,98 @@
+"""The ``tumblebot`` command as a user types it."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tumblebot.cli import main
+
+TABLE_3_1 = [((0.293, 0.117, 0.158, 0.218), 6.05), ((0.285, 0.117, 0.158, 0.218), 6.00),
+             ((0.292, 0.129, 0.098, 0.136), 5.20), ((0.189, 0.104, 0.098, 0.152), 3.76)]
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                          timeout=300, check=False)
+
+
+@pytest.mark.parametrize(("design", "e_thesis"), TABLE_3_1)
+def test_that_power_json_reproduces_table_3_1_within_two_percent(design: tuple, e_thesis: float,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["power", *map(str, design), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["e"] == pytest.approx(e_thesis, rel=0.02)
+    assert 0.5 < out["mass"] < 0.8
+
+
+def test_that_power_prints_a_readable_breakdown(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["power", "0.292", "0.129", "0.098", "0.136"]) == 0
+    out = capsys.readouterr().out
+    assert "flat half" in out and "tall half" in out and "W/m" in out
+
+
+def test_that_power_reports_designs_that_cannot_tumble(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["power", "0.2", "0.2", "0.2", "0.07", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["can_tumble"] is False and out["e"] is None
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["power", "0.2", "nan", "0.1", "0.1"], "y=nan is not finite"),
+    (["power", "0.5", "0.12", "0.1", "0.1"], "x=0.5 m is outside its bound"),
+    (["sim", "--task", "swim"], "unknown task 'swim'"),
+    (["sim", "--gait", "moonwalk"], "unknown gait 'moonwalk'"),
+    (["sim", "--design", "0.2,0.1"], "four comma-separated numbers"),
+    (["sim", "--video", "out.mp4"], "must end in .gif"),
+    (["urdf", "--design", "0.2,0.12,0.1,-1"], "l=-1.0 m must be positive"),
+])
+def test_that_bad_input_gives_one_error_line_and_exit_status_2(args: list[str], message: str) -> None:
+    result = run_cli(*args)
+    assert result.returncode == 2
+    err_lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(err_lines) == 1, result.stderr
+    assert message in err_lines[0]
+    assert "Traceback" not in result.stderr
+
+
+def test_that_out_of_bounds_designs_pass_with_the_opt_in(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["power", "0.393", "0.117", "0.158", "0.218", "--allow-out-of-bounds", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["e"] > 6.05
+
+
+def test_that_urdf_writes_a_file_pybullet_can_load(tmp_path: Path) -> None:
+    import pybullet as p
+
+    target = tmp_path / "robot.urdf"
+    assert main(["urdf", "--design", "0.25,0.15,0.12,0.2", "-o", str(target)]) == 0
+    client = p.connect(p.DIRECT)
+    try:
+        assert p.getNumJoints(p.loadURDF(str(target), physicsClientId=client), physicsClientId=client) == 2
+    finally:
+        p.disconnect(client)
+
+
+def test_that_sim_writes_an_animation_in_which_the_robot_moves(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    from PIL import Image, ImageChops
+
+    gif = tmp_path / "episode.gif"
+    assert main(["sim", "--task", "distance-flat", "--gait", "forward", "--video", str(gif)]) == 0
+    assert "final-state R" in capsys.readouterr().out
+    with Image.open(gif) as im:
+        assert im.n_frames >= 200  # 10 frames per simulated second, 20 s
+        im.seek(0)
+        first = im.convert("RGB")
+        im.seek(5)  # half a second in: the camera follows, the legs have turned
+        later = im.convert("RGB")
+        assert ImageChops.difference(first, later).getbbox() is not None
+
+
+def test_that_demo_runs_every_task_and_prints_the_power_table(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    for task in ("nav-flat", "nav-terrain", "distance-flat", "incline"):
+        assert task in out
+    assert "Table 3.1" in out
