@@ -212,7 +212,9 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         position, _, _ = self._state()
         self._potential = self.task.potential(position)
         self._capture_frame(force=True)
-        return self._observation(), {"design": self.design.as_tuple(), "step": 0}
+        info = {"design": self.design.as_tuple(), "step": 0, "spawn_position": (xy[0], xy[1], z),
+                "spawn_yaw": yaw, "friction": friction, "leg_angles": leg_angles}
+        return self._observation(), info
 
     def _choose_design(self, requested: Any, rng: np.random.Generator) -> Design:
         drawn = Design.sample(rng)  # always drawn, so the other streams never shift
