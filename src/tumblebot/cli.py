@@ -97,6 +97,130 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train(args: argparse.Namespace) -> int:
+    from tumblebot.sim.tasks import get_task
+
+    run_dir: Path | None = args.run_dir
+    if args.resume:
+        if run_dir is None:
+            raise TumblebotError("--resume needs --run-dir RUN (the folder of the run to continue)")
+        from tumblebot.training.ppo import train
+
+        final = train(None, run_dir, resume=True, total_steps=args.steps)
+        print(f"resumed and finished: {final}")
+        return 0
+    task = get_task(args.task)
+    from tumblebot.training.config import TrainConfig
+    from tumblebot.training.ppo import train
+
+    overrides = {k: v for k, v in (("total_steps", args.steps), ("n_envs", args.envs), ("seed", args.seed),
+                                   ("checkpoint_every", args.checkpoint_every)) if v is not None}
+    base = TrainConfig.load(args.config).__dict__ if args.config is not None else {}
+    config = TrainConfig.from_dict({**base, "task": task.name, **overrides})
+    if run_dir is None:
+        import time
+
+        run_dir = Path("runs") / f"{task.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    print(f"training {task.name} for {config.total_steps} steps with {config.envs} environments in {run_dir}")
+    final = train(config, run_dir)
+    print(f"finished: {final}; learning curve {run_dir / 'learning_curve.png'}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from tumblebot.sim.tasks import get_task
+    from tumblebot.training.export import export_onnx, load_run, write_card
+
+    if args.output.suffix != ".onnx":
+        raise TumblebotError(f"-o {args.output}: the output must end in .onnx")
+    model, config, checkpoint = load_run(args.run)
+    task = get_task(args.task or (config.task if config else ""))
+    export_onnx(model, args.output)
+    extra: dict[str, object] = {"checkpoint": str(checkpoint)}
+    if config is not None and (args.run / "episodes.csv").is_file():
+        import csv
+
+        with (args.run / "episodes.csv").open() as fh:
+            rows = list(csv.DictReader(fh))
+        if rows:
+            extra["training_wall_seconds"] = float(rows[-1]["wall_seconds"])
+    write_card(args.output, task.name, int(model.num_timesteps), config, extra)
+    print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
+    if args.eval_episodes > 0:
+        import json
+
+        from tumblebot.sim.policy import card_path
+        from tumblebot.training.card_eval import card_evaluation
+
+        evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers)
+        card = json.loads(card_path(args.output).read_text())
+        card["evaluation"] = evaluation
+        card_path(args.output).write_text(json.dumps(card, indent=2) + "\n")
+        for label, entry in evaluation["designs"].items():
+            lo, hi = entry["ci95"]
+            print(f"{label}: mean R {entry['mean_R']:.3f} [{lo:.3f}, {hi:.3f}], best fixed gait "
+                  f"{entry['best_fixed_gait']} {entry['baselines'][entry['best_fixed_gait']]['mean_R']:.3f} "
+                  f"(p = {entry['p_vs_best_fixed_gait']:.2g}), random {entry['baselines']['random']['mean_R']:.3f}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import json
+
+    from tumblebot.sim.design import Design
+    from tumblebot.sim.evaluate import Controller, evaluate
+    from tumblebot.sim.policy import PolicyError, bundled_policy
+    from tumblebot.sim.tasks import get_task
+
+    task = get_task(args.task)
+    w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
+    if args.episodes < 1 or args.workers < 1:
+        raise TumblebotError("--episodes and --workers must be at least 1")
+    if args.gait is not None and args.policy is not None:
+        raise TumblebotError("give --policy or --gait, not both")
+    if args.gait is not None:
+        controller = Controller("gait", args.gait)
+    else:
+        path = args.policy or bundled_policy(task.name)
+        if args.policy is None and not path.is_file():
+            raise PolicyError(f"no bundled policy for {task.name} ({path.name}); pass --policy FILE")
+        controller = Controller("onnx", str(path))
+    result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json)
+    summary = result.summary(xi=args.xi)
+    if args.csv is not None:
+        import csv
+
+        with args.csv.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["episode", "final_R", "final_x", "final_y", "final_z", "final_distance"])
+            for i, (r, p, d) in enumerate(zip(result.R, result.final_position, result.final_distance, strict=True)):
+                writer.writerow([i, f"{r:.6f}", f"{p[0]:.5f}", f"{p[1]:.5f}", f"{p[2]:.5f}", f"{d:.5f}"])
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    lo, hi = summary["ci95"]
+    print(f"{task.name}, {w}, {result.controller}, {result.episodes} episodes, seed {args.seed}")
+    print(f"mean final-state R  {summary['mean_R']:.3f}  (95 % CI {lo:.3f} … {hi:.3f}, sd {summary['sd_R']:.3f})")
+    print(f"median final distance to the origin  {summary['median_final_distance']:.3f} m")
+    e = summary["e"]
+    print(f"e(w)  {e:.3f} W/m" if e is not None else "e(w)  inf (the design cannot tumble)")
+    if "mean_f" in summary and summary["mean_f"] is not None:
+        print(f"f = R/(e+1)^ξ with ξ = {args.xi}:  {summary['mean_f']:.5g}")
+    if args.csv is not None:
+        print(f"per-episode results in {args.csv}")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         return float(text)
@@ -147,6 +271,50 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", type=Path, default=None, metavar="OUT.gif", help="write an animated GIF")
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_sim)
+
+    p = sub.add_parser("train", help="train a PPO policy for a task (checkpoints, resume)",
+                       description="Train a PPO policy with domain randomisation over the design bounds. "
+                                   "A run folder holds config.json, checkpoints, episodes.csv, TensorBoard "
+                                   "logs and learning_curve.png; a stopped run continues with --resume.")
+    p.add_argument("--task", default="nav-flat", help="nav-flat, nav-terrain, distance-flat or incline")
+    p.add_argument("--steps", type=_positive_int, default=None, help="total environment steps (default 2000000)")
+    p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
+    p.add_argument("--seed", type=int, default=None, help="seed (default 0)")
+    p.add_argument("--checkpoint-every", type=_positive_int, default=None,
+                   help="environment steps between checkpoints (default 50000)")
+    p.add_argument("--config", type=Path, default=None, help="JSON file of TrainConfig fields")
+    p.add_argument("--run-dir", type=Path, default=None, help="run folder (default runs/TASK-TIMESTAMP)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint")
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("export", help="export a trained run to ONNX with a model card (and evaluate it)",
+                       description="Write one self-contained ONNX file (dynamic batch, no side data) and "
+                                   "its model card (JSON, beside it), then evaluate the policy against "
+                                   "scripted gaits and a random policy and record that in the card.")
+    p.add_argument("run", type=Path, help="run folder (uses RUN/latest.zip) or a checkpoint .zip")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output .onnx file, e.g. policies/nav-flat.onnx")
+    p.add_argument("--task", default=None, help="task (default: from the run's config.json)")
+    p.add_argument("--eval-episodes", type=int, default=240, help="episodes per design for the card (0: skip)")
+    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    p.add_argument("--workers", type=_positive_int, default=1, help="evaluation worker processes")
+    p.set_defaults(func=_export)
+
+    p = sub.add_parser("evaluate", help="evaluate a policy (or a gait) on a design: mean R with a 95% CI",
+                       description="Run N episodes of a task on one design with the bundled ONNX policy "
+                                   "(or --policy / --gait). Episode i with seed S is the same whatever "
+                                   "--workers is, and the same draws are used for every design.")
+    p.add_argument("--task", required=True, help="nav-flat, nav-terrain, distance-flat or incline")
+    p.add_argument("--design", required=True, metavar="X,Y,Z,L", help="design in metres")
+    p.add_argument("--episodes", type=int, default=240, help="number of episodes (default 240)")
+    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    p.add_argument("--workers", type=int, default=1, help="worker processes")
+    p.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: the bundled one)")
+    p.add_argument("--gait", default=None, help="evaluate a scripted gait instead of a policy")
+    p.add_argument("--xi", type=float, default=None, help="also report f = R/(e+1)^xi")
+    p.add_argument("--csv", type=Path, default=None, help="write per-episode results to this CSV")
+    p.add_argument("--json", action="store_true", help="print one JSON object (mean_R, ci95, e, episodes, …)")
+    p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
+    p.set_defaults(func=_evaluate)
 
     p = sub.add_parser("demo", help="one scripted episode of each task and the power table",
                        description="What exists so far, in one minute: a scripted episode of each of "

@@ -1,0 +1,188 @@
+"""Evaluating a controller (an ONNX policy or a scripted gait) on a design.
+
+Episode ``i`` of an evaluation with seed ``S`` is reset with
+``episode_seed(S, i)``: the same start, terrain, masses, friction, noise and latency for
+every design and whatever the number of worker processes (common random numbers; the
+design is fixed, so the environment's design stream goes unused).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tumblebot.sim.design import Design
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.gaits import get_gait
+from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.tasks import get_task
+
+
+@dataclass(frozen=True)
+class Controller:
+    """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path) or ``"gait"``
+    (``name`` = gait name, ``random`` included). Picklable, so workers can rebuild it."""
+
+    kind: str
+    name: str
+
+    def label(self) -> str:
+        return Path(self.name).name if self.kind == "onnx" else f"gait:{self.name}"
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """The reset seed of episode ``index`` in an evaluation seeded ``seed``."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1, dtype=np.uint32)[0])
+
+
+@dataclass
+class EvalResult:
+    task: str
+    design: Design
+    controller: str
+    seed: int
+    R: np.ndarray  #: final-state reward per episode, in episode order
+    final_distance: np.ndarray  #: planar distance to the origin at the end, m
+    final_position: np.ndarray  #: (N, 3)
+    wall_seconds: float
+    e: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.e = energy_per_metre(self.design)
+
+    @property
+    def episodes(self) -> int:
+        return len(self.R)
+
+    @property
+    def mean_R(self) -> float:
+        return float(np.mean(self.R))
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        """Two-sided 95 % t interval of the mean final-state R."""
+        from scipy import stats
+
+        n = len(self.R)
+        if n < 2:
+            return (self.mean_R, self.mean_R)
+        half = float(stats.t.ppf(0.975, n - 1) * np.std(self.R, ddof=1) / math.sqrt(n))
+        return (self.mean_R - half, self.mean_R + half)
+
+    def summary(self, xi: float | None = None) -> dict[str, Any]:
+        from tumblebot.sim.objective import wrap_reward
+
+        out: dict[str, Any] = {
+            "task": self.task,
+            "design": dict(zip(("x", "y", "z", "l"), self.design.as_tuple(), strict=True)),
+            "controller": self.controller,
+            "seed": self.seed,
+            "episodes": self.episodes,
+            "mean_R": self.mean_R,
+            "ci95": list(self.ci95),
+            "sd_R": float(np.std(self.R, ddof=1)) if self.episodes > 1 else 0.0,
+            "median_final_distance": float(np.median(self.final_distance)),
+            "e": self.e if math.isfinite(self.e) else None,
+            "wall_seconds": self.wall_seconds,
+        }
+        if xi is not None:
+            f = [wrap_reward(float(r), self.e, xi) for r in self.R]
+            out["xi"] = xi
+            out["mean_f"] = float(np.mean(f)) if all(map(math.isfinite, f)) else None
+        return out
+
+
+# --- worker side -----------------------------------------------------------------------
+_worker: dict[str, Any] = {}
+
+
+def _init_worker(task: str, controller: Controller, design: Design) -> None:
+    from tumblebot.sim.env import TumblerEnv
+
+    _worker["env"] = TumblerEnv(task=task, design=design, randomization=Randomization(design=False))
+    _worker["controller"] = controller
+    if controller.kind == "onnx":
+        from tumblebot.sim.policy import OnnxPolicy
+
+        _worker["policy"] = OnnxPolicy(Path(controller.name), task=get_task(task).name)
+    else:
+        _worker["gait"] = get_gait(controller.name)
+
+
+def _run_episode(job: tuple[int, int]) -> tuple[int, float, tuple[float, float, float]]:
+    index, seed = job
+    env = _worker["env"]
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    info: dict[str, Any] = {}
+    for step in range(env.episode_steps):
+        if "policy" in _worker:
+            action = _worker["policy"].act(obs)
+        else:
+            action = np.array(_worker["gait"](step, rng))
+        obs, _, _, truncated, info = env.step(action)
+        if truncated:
+            break
+    pos = info["final_position"]
+    return index, float(info["final_R"]), (float(pos[0]), float(pos[1]), float(pos[2]))
+
+
+def _jobs(seed: int, episodes: int) -> list[tuple[int, int]]:
+    return [(i, episode_seed(seed, i)) for i in range(episodes)]
+
+
+def evaluate(task: str, design: Design, controller: Controller, episodes: int, seed: int = 0,
+             workers: int = 1, progress: bool = False) -> EvalResult:
+    """Run ``episodes`` episodes and collect the final-state rewards."""
+    spec = get_task(task)
+    if episodes < 1:
+        raise SimError(f"episodes={episodes} must be at least 1")
+    if workers < 1:
+        raise SimError(f"workers={workers} must be at least 1")
+    if controller.kind == "onnx":
+        from tumblebot.sim.policy import OnnxPolicy
+
+        OnnxPolicy(Path(controller.name), task=spec.name)  # fail fast, in this process
+    else:
+        get_gait(controller.name)
+    jobs = _jobs(seed, episodes)
+    results: list[tuple[int, float, tuple[float, float, float]]] = []
+    start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
+    it: Iterator[tuple[int, float, tuple[float, float, float]]]
+    if workers == 1:
+        _init_worker(spec.name, controller, design)
+        try:
+            it = map(_run_episode, jobs)
+            for r in it:
+                results.append(r)
+                if bar is not None:
+                    bar.update()
+        finally:
+            _worker.pop("env").close()
+            _worker.clear()
+    else:
+        ctx = mp.get_context("forkserver")
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(spec.name, controller, design)) as pool:
+            for r in pool.imap_unordered(_run_episode, jobs, chunksize=2):
+                results.append(r)
+                if bar is not None:
+                    bar.update()
+    if bar is not None:
+        bar.close()
+    results.sort(key=lambda r: r[0])
+    R = np.array([r[1] for r in results])
+    pos = np.array([r[2] for r in results])
+    return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
+                      time.perf_counter() - start)

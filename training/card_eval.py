@@ -1,0 +1,39 @@
+"""The evaluation a model card records: the policy against scripted gaits and a random
+policy, on the thesis's ξ = 3 robot and on a design drawn from the bounds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+from tumblebot.sim.design import Design
+from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
+from tumblebot.sim.gaits import GAITS
+
+XI3_ROBOT = Design(0.292, 0.129, 0.098, 0.136)
+#: The random design of the model cards: drawn once from the bounds with seed 2021.
+RANDOM_DESIGN = Design.sample(np.random.default_rng(2021))
+FIXED_GAITS = [g for g in GAITS if g != "random"]
+
+
+def _welch(a: EvalResult, b: EvalResult) -> float:
+    """One-sided p-value that ``a`` has a higher mean R than ``b`` (Welch's t-test)."""
+    return float(stats.ttest_ind(a.R, b.R, equal_var=False, alternative="greater").pvalue)
+
+
+def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: int) -> dict[str, Any]:
+    out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
+    for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
+        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
+        gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True)
+                 for g in [*FIXED_GAITS, "random"]}
+        best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
+        entry = pol.summary()
+        entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
+        entry["best_fixed_gait"] = best_fixed
+        entry["p_vs_best_fixed_gait"] = _welch(pol, gaits[best_fixed])
+        entry["p_vs_random_policy"] = _welch(pol, gaits["random"])
+        out["designs"][label] = entry
+    return out

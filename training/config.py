@@ -1,0 +1,96 @@
+"""Training hyperparameters: a typed config saved next to every run as ``config.json``."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from tumblebot.errors import TumblebotError
+
+
+class TrainingError(TumblebotError):
+    """A training run that cannot start or resume (bad config, missing checkpoint, …)."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run. Defaults are the ones the bundled policies
+    used unless their model card says otherwise.
+
+    Attributes:
+        task: task short name.
+        total_steps: environment steps to train for (all environments together).
+        n_envs: parallel environments (``SubprocVecEnv``); 0 means one per CPU core.
+        seed: seeds the environments and PPO.
+        checkpoint_every: environment steps between checkpoints.
+        learning_rate, n_steps, batch_size, n_epochs, gamma, gae_lambda, clip_range,
+        ent_coef, vf_coef, max_grad_norm: PPO (stable-baselines3 names and meanings);
+            ``n_steps`` is per environment.
+        net_arch: hidden layer sizes of the policy and value MLPs (separate networks).
+        state_weight, progress_weight: the environment's reward shaping.
+    """
+
+    task: str = "nav-flat"
+    total_steps: int = 2_000_000
+    n_envs: int = 0
+    seed: int = 0
+    checkpoint_every: int = 50_000
+    learning_rate: float = 3e-4
+    n_steps: int = 256
+    batch_size: int = 256
+    n_epochs: int = 10
+    gamma: float = 0.98
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.005
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    net_arch: list[int] = field(default_factory=lambda: [128, 128])
+    state_weight: float = 1.0
+    progress_weight: float = 5.0
+
+    def __post_init__(self) -> None:
+        from tumblebot.sim.tasks import get_task
+
+        get_task(self.task)
+        for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise TrainingError(f"training config {name}={getattr(self, name)!r} must be a positive integer")
+        if not isinstance(self.n_envs, int) or self.n_envs < 0:
+            raise TrainingError(f"training config n_envs={self.n_envs!r} must be >= 0 (0 = one per core)")
+        for name in ("learning_rate", "gamma", "gae_lambda", "clip_range", "max_grad_norm"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not value > 0:
+                raise TrainingError(f"training config {name}={value!r} must be a positive number")
+        if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
+            raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
+
+    @property
+    def envs(self) -> int:
+        return self.n_envs or (os.cpu_count() or 1)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2) + "\n"
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise TrainingError(f"unknown training config keys: {', '.join(unknown)}")
+        return cls(**data)
+
+    @classmethod
+    def load(cls, path: Path) -> TrainConfig:
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise TrainingError(f"training config {path} does not exist") from None
+        except json.JSONDecodeError as exc:
+            raise TrainingError(f"training config {path} is not valid JSON: {exc}") from None
+        if not isinstance(data, dict):
+            raise TrainingError(f"training config {path} must hold a JSON object")
+        return cls.from_dict(data)

@@ -1,0 +1,95 @@
+"""Exporting a trained PPO policy to one self-contained ONNX file with a model card.
+
+The exported graph takes the thesis observation ``obs`` (float32, ``(batch, 9)``,
+dynamic batch) and returns ``action`` (int64, ``(batch, 2)``): the deterministic action,
+i.e. the arg-max of each motor's logits, exactly what SB3's
+``predict(deterministic=True)`` returns. The feature computation
+(:mod:`tumblebot.training.features`) is inside the graph.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import torch
+from stable_baselines3 import PPO
+from torch import nn
+from tumblebot.sim.policy import ACTION_LAYOUT, OBS_LAYOUT, card_path, sha256_of
+from tumblebot.sim.randomization import Randomization
+from tumblebot.training.config import TrainConfig, TrainingError
+from tumblebot.training.features import FEATURE_NAMES
+
+
+class DeterministicActor(nn.Module):
+    """The actor half of an SB3 ``ActorCriticPolicy`` with arg-max action selection."""
+
+    def __init__(self, model: PPO) -> None:
+        super().__init__()
+        policy = model.policy
+        self.features = policy.pi_features_extractor
+        self.body = policy.mlp_extractor.policy_net
+        self.head = policy.action_net
+        self.nvec = [int(n) for n in model.action_space.nvec]  # type: ignore[attr-defined]
+        if len(set(self.nvec)) != 1:
+            raise TrainingError(f"export supports equal-sized MultiDiscrete spaces, not {self.nvec}")
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        logits = self.head(self.body(self.features(obs)))
+        return torch.argmax(logits.reshape(-1, len(self.nvec), self.nvec[0]), dim=-1)
+
+
+def load_run(run: Path) -> tuple[PPO, TrainConfig | None, Path]:
+    """Load ``RUN/latest.zip`` (or a checkpoint .zip given directly)."""
+    checkpoint = run / "latest.zip" if run.is_dir() else run
+    if not checkpoint.is_file():
+        raise TrainingError(f"no checkpoint at {checkpoint}")
+    try:
+        model = PPO.load(checkpoint, device="cpu")
+    except Exception as exc:  # SB3 raises many types for a bad zip
+        raise TrainingError(f"cannot load checkpoint {checkpoint}: {exc}") from None
+    config_file = (run if run.is_dir() else run.parent) / "config.json"
+    config = TrainConfig.load(config_file) if config_file.is_file() else None
+    return model, config, checkpoint
+
+
+def export_onnx(model: PPO, path: Path) -> None:
+    actor = DeterministicActor(model).eval()
+    example = torch.zeros(4, len(OBS_LAYOUT), dtype=torch.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    batch = torch.export.Dim("batch", min=1)
+    with torch.no_grad():
+        torch.onnx.export(actor, (example,), str(tmp), input_names=["obs"], output_names=["action"],
+                          dynamic_shapes={"obs": {0: batch}}, external_data=False, dynamo=True,
+                          verbose=False)
+    import onnx
+
+    onnx.checker.check_model(onnx.load(str(tmp)), full_check=True)
+    os.replace(tmp, path)
+
+
+def write_card(onnx_path: Path, task: str, steps: int, config: TrainConfig | None,
+               extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    card: dict[str, Any] = {
+        "format": "tumblebot-policy-card/1",
+        "task": task,
+        "observation": {"fields": list(OBS_LAYOUT), "dtype": "float32",
+                        "note": "thesis observation; features inside the graph: " + ", ".join(FEATURE_NAMES)},
+        "action": {"name": "action", "dtype": "int64", "shape": ["batch", 2], **ACTION_LAYOUT},
+        "training_steps": steps,
+        "seed": config.seed if config else None,
+        "training_config": asdict(config) if config else None,
+        "randomization": asdict(Randomization()),
+        "onnx_sha256": sha256_of(onnx_path),
+    }
+    if extra:
+        card.update(extra)
+    cpath = card_path(onnx_path)
+    tmp = cpath.with_name(cpath.name + ".tmp")
+    tmp.write_text(json.dumps(card, indent=2) + "\n")
+    os.replace(tmp, cpath)
+    return card

@@ -1,0 +1,197 @@
+"""PPO training with checkpoints, resume, a progress bar and a learning curve.
+
+A run lives in one folder::
+
+    RUN/config.json          the TrainConfig (written once, read on --resume)
+    RUN/latest.zip           the newest checkpoint (replaced atomically)
+    RUN/checkpoints/         every checkpoint, named by environment steps
+    RUN/episodes.csv         one row per finished episode: steps, final_R, shaped return
+    RUN/tb/                  TensorBoard logs
+    RUN/learning_curve.png   final-state R and shaped return vs steps (written at the end)
+
+A run killed at any moment resumes from ``latest.zip`` (``train(..., resume=True)``),
+losing at most one checkpoint interval; rows of ``episodes.csv`` past the checkpoint are
+dropped on resume so the curve has no duplicates.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import time
+from collections import deque
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
+from tqdm import tqdm
+from tumblebot.sim.env import TumblerEnv
+from tumblebot.training.config import TrainConfig, TrainingError
+from tumblebot.training.features import TumblerFeaturesExtractor
+
+CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
+
+
+def make_env(task: str, state_weight: float, progress_weight: float) -> TumblerEnv:
+    """Environment factory, run inside each worker process."""
+    torch.set_num_threads(1)
+    return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight)
+
+
+def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
+    factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight)
+    n = config.envs
+    venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
+    venv.seed(seed)
+    return VecMonitor(venv)
+
+
+class RunCallback(BaseCallback):
+    """Progress bar, episode CSV, and periodic atomic checkpoints."""
+
+    def __init__(self, run_dir: Path, config: TrainConfig, start_steps: int) -> None:
+        super().__init__()
+        self.run_dir = run_dir
+        self.config = config
+        self.next_checkpoint = (start_steps // config.checkpoint_every + 1) * config.checkpoint_every
+        self.recent: deque[float] = deque(maxlen=200)
+        self.bar = tqdm(total=config.total_steps, initial=start_steps, unit="step", dynamic_ncols=True,
+                        desc=f"train {config.task}", mininterval=2.0)
+        self.csv_file = (run_dir / "episodes.csv").open("a", newline="")
+        self.writer = csv.writer(self.csv_file)
+        if self.csv_file.tell() == 0:
+            self.writer.writerow(CSV_FIELDS)
+        self.start_wall = time.monotonic()
+        self.start_steps = start_steps
+
+    def _on_step(self) -> bool:
+        steps = self.num_timesteps
+        for info in self.locals["infos"]:
+            if "final_R" in info:
+                self.recent.append(float(info["final_R"]))
+                shaped = float(info["episode"]["r"]) if "episode" in info else float("nan")
+                self.writer.writerow((steps, f"{info['final_R']:.5f}", f"{shaped:.5f}",
+                                      f"{time.monotonic() - self.start_wall:.1f}"))
+        self.bar.update(steps - self.bar.n)
+        if self.recent:
+            rate = (steps - self.start_steps) / max(time.monotonic() - self.start_wall, 1e-9)
+            self.bar.set_postfix_str(f"{rate:.0f} steps/s, final R {np.mean(self.recent):+.3f}", refresh=False)
+        if steps >= self.next_checkpoint:
+            self.save()
+            self.next_checkpoint += self.config.checkpoint_every
+        return True
+
+    def save(self) -> None:
+        self.csv_file.flush()
+        os.fsync(self.csv_file.fileno())
+        save_checkpoint(self.model, self.run_dir)
+
+    def _on_training_end(self) -> None:
+        self.csv_file.flush()
+        self.bar.close()
+
+    def close(self) -> None:
+        self.csv_file.close()
+        self.bar.close()
+
+
+def save_checkpoint(model: PPO, run_dir: Path) -> Path:
+    """Write ``checkpoints/step_N.zip`` and atomically replace ``latest.zip``."""
+    ckpt_dir = run_dir / "checkpoints"
+    ckpt_dir.mkdir(exist_ok=True)
+    target = ckpt_dir / f"step_{model.num_timesteps:010d}.zip"
+    tmp = run_dir / "latest.tmp.zip"
+    model.save(tmp)
+    shutil.copyfile(tmp, target)
+    with tmp.open("rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, run_dir / "latest.zip")
+    return target
+
+
+def _trim_csv(path: Path, max_steps: int) -> None:
+    """Drop episodes recorded after the checkpoint we resume from."""
+    if not path.exists():
+        return
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        return
+    kept = [rows[0]] + [r for r in rows[1:] if r and int(r[0]) <= max_steps]
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("w", newline="") as fh:
+        csv.writer(fh).writerows(kept)
+    os.replace(tmp, path)
+
+
+def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
+    policy_kwargs: dict[str, Any] = {
+        "features_extractor_class": TumblerFeaturesExtractor,
+        "net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)},
+        "activation_fn": torch.nn.Tanh,
+    }
+    return PPO("MlpPolicy", env, learning_rate=config.learning_rate, n_steps=config.n_steps,
+               batch_size=config.batch_size, n_epochs=config.n_epochs, gamma=config.gamma,
+               gae_lambda=config.gae_lambda, clip_range=config.clip_range, ent_coef=config.ent_coef,
+               vf_coef=config.vf_coef, max_grad_norm=config.max_grad_norm, policy_kwargs=policy_kwargs,
+               tensorboard_log=str(run_dir / "tb"), seed=config.seed, device="cpu", verbose=0)
+
+
+def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total_steps: int | None = None) -> Path:
+    """Train (or resume) a run in ``run_dir``; returns the path of the final checkpoint.
+
+    With ``resume``, the config is read from ``run_dir/config.json`` (``total_steps`` may
+    extend it) and training continues from ``latest.zip``.
+    """
+    torch.set_num_threads(1)
+    config_path = run_dir / "config.json"
+    if resume:
+        if not (run_dir / "latest.zip").exists():
+            raise TrainingError(f"cannot resume: {run_dir / 'latest.zip'} does not exist")
+        config = TrainConfig.load(config_path)
+        if total_steps is not None:
+            config.total_steps = total_steps
+            config_path.write_text(config.to_json())
+    else:
+        if config is None:
+            raise TrainingError("a new run needs a training config")
+        if (run_dir / "latest.zip").exists():
+            raise TrainingError(f"{run_dir} already holds a run; pass --resume to continue it")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        config_path.write_text(config.to_json())
+
+    if resume:
+        model = PPO.load(run_dir / "latest.zip", device="cpu")
+        start = model.num_timesteps
+        _trim_csv(run_dir / "episodes.csv", start)
+        env = build_vec_env(config, seed=config.seed + start)
+        model.set_env(env)
+        model.tensorboard_log = str(run_dir / "tb")
+    else:
+        env = build_vec_env(config, seed=config.seed)
+        model = new_model(config, env, run_dir)
+        start = 0
+    callback = RunCallback(run_dir, config, start)
+    try:
+        remaining = config.total_steps - start
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
+                        tb_log_name="ppo")
+        callback.save()
+    except KeyboardInterrupt:
+        callback.save()
+        raise
+    finally:
+        callback.close()
+        env.close()
+    from tumblebot.training.curves import plot_learning_curve
+
+    plot_learning_curve(run_dir / "episodes.csv", run_dir / "learning_curve.png", title=f"{config.task} (PPO)")
+    return run_dir / "latest.zip"
