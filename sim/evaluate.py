@@ -123,10 +123,7 @@ def _run_episode(job: tuple[int, int]) -> tuple[int, float, tuple[float, float, 
     rng = np.random.default_rng(seed)
     info: dict[str, Any] = {}
     for step in range(env.episode_steps):
-        if "policy" in _worker:
-            action = _worker["policy"].act(obs)
-        else:
-            action = np.array(_worker["gait"](step, rng))
+        action = _worker["policy"].act(obs) if "policy" in _worker else np.array(_worker["gait"](step, rng))
         obs, _, _, truncated, info = env.step(action)
         if truncated:
             break

@@ -62,4 +62,4 @@ class TumblerFeaturesExtractor(BaseFeaturesExtractor):
         self.features = ObservationFeatures()
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        return self.features(observations)  # type: ignore[no-any-return]
+        return self.features(observations)

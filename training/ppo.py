@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 from tqdm import tqdm
@@ -102,7 +103,7 @@ class RunCallback(BaseCallback):
         self.bar.close()
 
 
-def save_checkpoint(model: PPO, run_dir: Path) -> Path:
+def save_checkpoint(model: BaseAlgorithm, run_dir: Path) -> Path:
     """Write ``checkpoints/step_N.zip`` and atomically replace ``latest.zip``."""
     ckpt_dir = run_dir / "checkpoints"
     ckpt_dir.mkdir(exist_ok=True)

@@ -1,0 +1,197 @@
+"""Training, resume, export parity, evaluation determinism and bad inputs (tiny budgets)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.cli import main
+from tumblebot.sim.design import Design
+from tumblebot.sim.env import OBS_FIELDS, TumblerEnv
+from tumblebot.sim.evaluate import Controller, evaluate
+from tumblebot.sim.policy import OBS_LAYOUT, OnnxPolicy, PolicyError
+from tumblebot.training.config import TrainConfig, TrainingError
+
+XI3 = "0.292,0.129,0.098,0.136"
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from tumblebot.training.ppo import train
+
+    run = tmp_path_factory.mktemp("run") / "nav"
+    config = TrainConfig(task="nav-flat", total_steps=256, n_envs=1, n_steps=64, batch_size=64, n_epochs=2,
+                         checkpoint_every=128, net_arch=[16, 16])
+    train(config, run)
+    return run
+
+
+@pytest.fixture(scope="module")
+def tiny_policy(tiny_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("policy") / "nav-flat.onnx"
+    assert main(["export", str(tiny_run), "-o", str(out), "--eval-episodes", "0"]) == 0
+    return out
+
+
+def test_that_the_policy_layout_matches_the_environment() -> None:
+    assert OBS_LAYOUT == OBS_FIELDS
+
+
+def test_that_a_run_folder_holds_config_checkpoints_curve_and_episodes(tiny_run: Path) -> None:
+    assert json.loads((tiny_run / "config.json").read_text())["task"] == "nav-flat"
+    assert (tiny_run / "latest.zip").is_file()
+    assert len(list((tiny_run / "checkpoints").glob("step_*.zip"))) >= 2
+    assert (tiny_run / "learning_curve.png").stat().st_size > 1000
+    with (tiny_run / "episodes.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) >= 10 and all(float(r["final_R"]) < 10 for r in rows)
+
+
+def test_that_export_writes_one_self_contained_onnx_file_and_a_model_card(tiny_policy: Path) -> None:
+    import onnx
+
+    files = sorted(p.name for p in tiny_policy.parent.iterdir())
+    assert files == ["nav-flat.json", "nav-flat.onnx"]  # no side .onnx.data
+    onnx.checker.check_model(onnx.load(str(tiny_policy)), full_check=True)
+    card = json.loads(tiny_policy.with_suffix(".json").read_text())
+    assert card["task"] == "nav-flat"
+    assert card["observation"]["fields"] == list(OBS_LAYOUT)
+    assert card["training_steps"] >= 256
+    assert card["seed"] == 0
+    assert "motor_speed_sigma" in card["randomization"]
+
+
+def test_that_onnx_actions_equal_sb3_deterministic_predict_on_10000_observations(
+        tiny_run: Path, tiny_policy: Path) -> None:
+    from stable_baselines3 import PPO
+
+    model = PPO.load(tiny_run / "latest.zip", device="cpu")
+    policy = OnnxPolicy(tiny_policy, task="nav-flat")
+    observations = []
+    env = TumblerEnv(task="nav-flat")
+    try:
+        rng = np.random.default_rng(0)
+        for seed in range(50):  # 1 000 observations from real episodes
+            obs, _ = env.reset(seed=seed)
+            for _ in range(20):
+                observations.append(obs)
+                obs, *_ = env.step(rng.integers(0, 3, 2))
+    finally:
+        env.close()
+    rng = np.random.default_rng(1)
+    n = 9_000  # and random states: positions, unit quaternions, commands
+    q = rng.normal(size=(n, 4))
+    random_states = np.hstack([rng.uniform(-3, 3, (n, 2)), rng.uniform(0, 0.3, (n, 1)),
+                               q / np.linalg.norm(q, axis=1, keepdims=True), rng.integers(-1, 2, (n, 2))])
+    batch = np.vstack([np.array(observations), random_states]).astype(np.float32)
+    assert len(batch) >= 10_000
+    expected, _ = model.predict(batch, deterministic=True)
+    np.testing.assert_array_equal(policy.act_batch(batch), expected)
+    one_at_a_time = np.array([policy.act(o) for o in batch[:200]])
+    np.testing.assert_array_equal(one_at_a_time, expected[:200])
+
+
+def test_that_evaluation_is_identical_whatever_the_number_of_workers(tiny_policy: Path) -> None:
+    w = Design.parse(XI3)
+    one = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=3, workers=1)
+    two = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=3, workers=2)
+    np.testing.assert_array_equal(one.R, two.R)
+    other_seed = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=4, workers=1)
+    assert not np.array_equal(one.R, other_seed.R)
+
+
+def test_that_evaluate_json_reports_mean_ci_e_and_episodes(tiny_policy: Path, capsys: pytest.CaptureFixture[str],
+                                                          tmp_path: Path) -> None:
+    csv_path = tmp_path / "episodes.csv"
+    assert main(["evaluate", "--task", "nav-flat", "--design", XI3, "--episodes", "4", "--seed", "0",
+                 "--policy", str(tiny_policy), "--xi", "3", "--csv", str(csv_path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["episodes"] == 4
+    assert out["ci95"][0] <= out["mean_R"] <= out["ci95"][1]
+    assert out["e"] == pytest.approx(5.19, abs=0.02)
+    assert "mean_f" in out
+    assert len(csv_path.read_text().splitlines()) == 5
+
+
+def test_that_a_run_killed_mid_training_resumes_from_its_last_checkpoint(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"n_steps": 64, "batch_size": 64, "n_epochs": 1, "net_arch": [8]}))
+    cmd = [sys.executable, "-m", "tumblebot.cli", "train", "--task", "distance-flat", "--steps", "100000",
+           "--envs", "1", "--checkpoint-every", "128", "--config", str(config), "--run-dir", str(run)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 240
+        while len(list((run / "checkpoints").glob("step_*.zip"))) < 2:
+            assert time.monotonic() < deadline, "no checkpoint written"
+            assert proc.poll() is None, "training exited early"
+            time.sleep(0.2)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    from stable_baselines3 import PPO
+
+    saved = PPO.load(run / "latest.zip", device="cpu").num_timesteps
+    assert saved >= 128
+    assert main(["train", "--resume", "--run-dir", str(run), "--steps", str(saved + 128)]) == 0
+    resumed = PPO.load(run / "latest.zip", device="cpu").num_timesteps
+    assert resumed >= saved + 128
+    with (run / "episodes.csv").open() as fh:
+        steps = [int(r["steps"]) for r in csv.DictReader(fh)]
+    assert steps == sorted(steps)  # episodes past the checkpoint were dropped, not duplicated
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["evaluate", "--task", "swim", "--design", XI3], "unknown task 'swim'"),
+    (["evaluate", "--task", "nav-flat", "--design", XI3, "--policy", "missing.onnx"], "does not exist"),
+    (["train", "--resume"], "--resume needs --run-dir"),
+    (["export", "no-such-run", "-o", "x.onnx"], "no checkpoint"),
+])
+def test_that_bad_training_and_evaluation_input_is_one_clear_error(args: list[str], message: str) -> None:
+    result = subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                            timeout=120, check=False)
+    assert result.returncode == 2
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+def test_that_a_corrupt_policy_file_is_refused(tiny_policy: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "nav-flat.onnx"
+    bad.write_bytes(tiny_policy.read_bytes()[:-50])
+    (tmp_path / "nav-flat.json").write_text(tiny_policy.with_suffix(".json").read_text())
+    with pytest.raises(PolicyError, match="does not match its model card"):
+        OnnxPolicy(bad)
+
+
+def test_that_a_policy_for_another_task_or_layout_is_refused(tiny_policy: Path, tmp_path: Path) -> None:
+    with pytest.raises(PolicyError, match="trained for task 'nav-flat', not 'incline'"):
+        OnnxPolicy(tiny_policy, task="incline")
+    other = tmp_path / "p.onnx"
+    other.write_bytes(tiny_policy.read_bytes())
+    card = json.loads(tiny_policy.with_suffix(".json").read_text())
+    card["observation"]["fields"] = ["px", "py"]
+    other.with_suffix(".json").write_text(json.dumps(card))
+    with pytest.raises(PolicyError, match="observation layout"):
+        OnnxPolicy(other)
+
+
+def test_that_evaluation_and_policies_do_not_import_torch() -> None:
+    code = ("import sys, tumblebot.sim.evaluate, tumblebot.sim.policy, tumblebot.cli; "
+            "assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_that_bad_training_configs_are_rejected() -> None:
+    with pytest.raises(TrainingError, match="n_steps"):
+        TrainConfig(n_steps=0)
+    with pytest.raises(TrainingError, match="unknown training config keys: lr"):
+        TrainConfig.from_dict({"lr": 1})
