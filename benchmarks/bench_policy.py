@@ -1,0 +1,85 @@
+"""Policy inference latency and evaluation throughput.
+
+Run: ``.venv/bin/python benchmarks/bench_policy.py --run RUN --policy POLICY.onnx``
+(defaults: ``runs/nav-flat`` and the bundled ``nav-flat`` policy).
+
+1. Latency per observation, onnxruntime (:class:`OnnxPolicy`, what evaluation, the
+   optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99.
+2. Evaluation throughput on nav-flat: whole episodes with ONNX inference in the loop,
+   against bare stepping of the same episodes (same scenes, same substeps, with the DC
+   motor update), interleaved in one run; the ratio is the evaluation overhead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_env import time_raw_episode  # same folder
+
+from tumblebot.sim.design import Design
+from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.randomization import Randomization
+
+
+def latency(run: Path, policy: OnnxPolicy, n: int) -> None:
+    from stable_baselines3 import PPO
+
+    model = PPO.load(run / "latest.zip" if run.is_dir() else run, device="cpu")
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(n, 9)).astype(np.float32)
+    ort_t, sb3_t = [], []
+    for o in obs:
+        t0 = time.perf_counter()
+        policy.act(o)
+        t1 = time.perf_counter()
+        model.predict(o, deterministic=True)
+        t2 = time.perf_counter()
+        ort_t.append(t1 - t0)
+        sb3_t.append(t2 - t1)
+    print(f"inference latency per observation ({n} calls, interleaved)")
+    for name, ts in (("onnxruntime", ort_t), ("SB3 predict", sb3_t)):
+        print(f"  {name:<12} median {np.median(ts) * 1e6:7.1f} µs   p99 {np.percentile(ts, 99) * 1e6:7.1f} µs")
+    print(f"  SB3/onnxruntime median ratio {np.median(sb3_t) / np.median(ort_t):.1f}×")
+
+
+def throughput(policy: OnnxPolicy, episodes: int) -> None:
+    env = TumblerEnv(task="nav-flat", design=Design(0.292, 0.129, 0.098, 0.136),
+                     randomization=Randomization(design=False))
+    t_eval, t_raw = [], []
+    for i in range(episodes):
+        start = time.perf_counter()
+        obs, _ = env.reset(seed=i)
+        for _ in range(env.episode_steps):
+            obs, *_ = env.step(policy.act(obs))
+        t_eval.append(time.perf_counter() - start)
+        t_raw.append(time_raw_episode(env, i, motor_update=True))
+    env.close()
+    e, r = statistics.median(t_eval), statistics.median(t_raw)
+    print(f"\nnav-flat evaluation, medians of {episodes} episodes (interleaved)")
+    print(f"  policy episodes  {e * 1e3:7.1f} ms  ({1 / e:.2f} episodes/s per core)")
+    print(f"  bare stepping    {r * 1e3:7.1f} ms")
+    print(f"  overhead         {100 * (e / r - 1):+.1f} %")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", type=Path, default=Path("runs/nav-flat"), help="SB3 run folder or .zip")
+    parser.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: bundled nav-flat)")
+    parser.add_argument("--calls", type=int, default=5000)
+    parser.add_argument("--episodes", type=int, default=20)
+    args = parser.parse_args()
+    policy = OnnxPolicy(args.policy or bundled_policy("nav-flat"))
+    print(f"tumblebot policy benchmark, {time.strftime('%Y-%m-%d')}, {platform.machine()}, "
+          f"Python {platform.python_version()}, policy {policy.path.name}")
+    latency(args.run, policy, args.calls)
+    throughput(policy, args.episodes)
+
+
+if __name__ == "__main__":
+    main()
