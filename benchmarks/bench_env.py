@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 import psutil
+
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.tasks import TASKS

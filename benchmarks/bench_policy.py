@@ -19,12 +19,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_env import time_raw_episode  # same folder
 
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.policy import OnnxPolicy, bundled_policy
 from tumblebot.sim.randomization import Randomization
+
+from bench_env import time_raw_episode  # same folder
 
 
 def latency(run: Path, policy: OnnxPolicy, n: int) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
 from tumblebot.sim.errors import DesignError
 
 PARAMETERS: tuple[str, ...] = ("x", "y", "z", "l")

@@ -32,6 +32,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait

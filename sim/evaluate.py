@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait

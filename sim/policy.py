@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from tumblebot.sim.errors import SimError
 
 #: The observation layout every policy must declare (kept in step with env.OBS_FIELDS,

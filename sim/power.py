@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel

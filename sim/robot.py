@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from tumblebot.sim.pb import pybullet
 from tumblebot.sim.tasks import TaskSpec
 from tumblebot.sim.terrain import TerrainConfig, height_at, tile_heightfield

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from tumblebot.sim.design import Design
 
 TASK_NAMES = ("nav-flat", "nav-terrain", "distance-flat", "incline")

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 from scipy import stats
+
 from tumblebot.sim.design import Design
 from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
 from tumblebot.sim.gaits import GAITS

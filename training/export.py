@@ -18,6 +18,7 @@ from typing import Any
 import torch
 from stable_baselines3 import PPO
 from torch import nn
+
 from tumblebot.sim.policy import ACTION_LAYOUT, OBS_LAYOUT, card_path, sha256_of
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError

@@ -33,6 +33,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 from tqdm import tqdm
+
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import TumblerFeaturesExtractor

@@ -2,6 +2,7 @@ import math
 
 import numpy as np
 import pytest
+
 from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.errors import DesignError
 

@@ -3,13 +3,13 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import tumblebot  # noqa: F401  (registers the environments)
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, TumblerEnv
 from tumblebot.sim.errors import SimError, UnknownTaskError
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.tasks import TASKS
-
-import tumblebot  # noqa: F401  (registers the environments)
 
 from ..conftest import TASK_NAMES
 

@@ -4,6 +4,7 @@ without ``resetSimulation``; SPEC §6)."""
 import numpy as np
 import psutil
 import pytest
+
 from tumblebot.sim.env import TumblerEnv
 
 

@@ -1,6 +1,7 @@
 import math
 
 import pytest
+
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.objective import wrap_reward
 

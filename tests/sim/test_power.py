@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import quad
+
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.power import (

@@ -4,6 +4,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as p
 import pytest
+
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.terrain import TerrainConfig, perlin, tile_heightfield
 
