@@ -73,9 +73,13 @@ NEUTRAL_MIN_US, NEUTRAL_MAX_US = 1300, 1700
 
 
 class ProtocolError(ValueError):
-    """A frame or datagram that does not decode; ``code`` says why."""
+    """A frame or datagram that does not decode."""
 
-    def __init__(self, code: ErrorCode | DropReason, message: str) -> None:
+
+class FrameError(ProtocolError):
+    """A serial frame refused; ``code`` says why."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
         super().__init__(message)
         self.code = code
 
@@ -120,10 +124,10 @@ def cobs_decode(data: bytes) -> bytes:
         code = data[i]
         end = i + code
         if code == 0 or end > n:
-            raise ProtocolError(ErrorCode.BAD_COBS, f"COBS code {code} at offset {i} overruns the frame")
+            raise FrameError(ErrorCode.BAD_COBS, f"COBS code {code} at offset {i} overruns the frame")
         block = data[i + 1:end]
         if 0 in block:
-            raise ProtocolError(ErrorCode.BAD_COBS, "zero byte inside a COBS block")
+            raise FrameError(ErrorCode.BAD_COBS, "zero byte inside a COBS block")
         out += block
         i = end
         if code != 0xFF and i < n:
@@ -145,7 +149,7 @@ class Frame:
 def encode_frame(frame: Frame) -> bytes:
     """Frame → wire bytes (COBS, then the 0x00 delimiter)."""
     if len(frame.payload) > MAX_PAYLOAD:
-        raise ProtocolError(ErrorCode.TOO_LONG, f"payload of {len(frame.payload)} bytes exceeds {MAX_PAYLOAD}")
+        raise FrameError(ErrorCode.TOO_LONG, f"payload of {len(frame.payload)} bytes exceeds {MAX_PAYLOAD}")
     body = SERIAL_HEADER.pack(frame.version, frame.epoch & 0xFFFF, frame.seq & 0xFFFF, frame.type) + frame.payload
     body += struct.pack("<H", crc16_mcrf4xx(body))
     return cobs_encode(body) + b"\x00"
@@ -158,32 +162,32 @@ def decode_body(encoded: bytes) -> Frame:
     sequence policy belong to the receiver (:class:`SequenceGuard`).
     """
     if len(encoded) > MAX_ENCODED:
-        raise ProtocolError(ErrorCode.TOO_LONG, f"frame of {len(encoded)} bytes exceeds {MAX_ENCODED}")
+        raise FrameError(ErrorCode.TOO_LONG, f"frame of {len(encoded)} bytes exceeds {MAX_ENCODED}")
     body = cobs_decode(encoded)
     if len(body) < SERIAL_HEADER_SIZE + CRC_SIZE:
-        raise ProtocolError(ErrorCode.TOO_SHORT, f"frame body of {len(body)} bytes is too short")
+        raise FrameError(ErrorCode.TOO_SHORT, f"frame body of {len(body)} bytes is too short")
     if len(body) > MAX_BODY:
-        raise ProtocolError(ErrorCode.TOO_LONG, f"frame body of {len(body)} bytes exceeds {MAX_BODY}")
+        raise FrameError(ErrorCode.TOO_LONG, f"frame body of {len(body)} bytes exceeds {MAX_BODY}")
     (crc,) = struct.unpack_from("<H", body, len(body) - CRC_SIZE)
     if crc16_mcrf4xx(body[:-CRC_SIZE]) != crc:
-        raise ProtocolError(ErrorCode.BAD_CRC, "CRC mismatch")
+        raise FrameError(ErrorCode.BAD_CRC, "CRC mismatch")
     version, epoch, seq, mtype = SERIAL_HEADER.unpack_from(body)
     if version != PROTOCOL_VERSION:
-        raise ProtocolError(ErrorCode.BAD_VERSION, f"protocol version {version}, expected {PROTOCOL_VERSION}")
+        raise FrameError(ErrorCode.BAD_VERSION, f"protocol version {version}, expected {PROTOCOL_VERSION}")
     payload = body[SERIAL_HEADER_SIZE:-CRC_SIZE]
     try:
         kind = MsgType(mtype)
     except ValueError:
-        raise ProtocolError(ErrorCode.UNKNOWN_TYPE, f"unknown message type 0x{mtype:02x}") from None
+        raise FrameError(ErrorCode.UNKNOWN_TYPE, f"unknown message type 0x{mtype:02x}") from None
     if len(payload) != PAYLOAD_SIZES[kind]:
-        raise ProtocolError(ErrorCode.BAD_PAYLOAD, f"{kind.name} payload of {len(payload)} bytes, "
+        raise FrameError(ErrorCode.BAD_PAYLOAD, f"{kind.name} payload of {len(payload)} bytes, "
                                                    f"expected {PAYLOAD_SIZES[kind]}")
     if kind is MsgType.SET_SPEEDS and any(v not in (-1, 0, 1) for v in struct.unpack("<bb", payload)):
-        raise ProtocolError(ErrorCode.BAD_PAYLOAD, "speeds must be -1, 0 or +1")
+        raise FrameError(ErrorCode.BAD_PAYLOAD, "speeds must be -1, 0 or +1")
     if kind is MsgType.SET_TRIM:
         servo, neutral, direction = TRIM_STRUCT.unpack(payload)
         if servo > 1 or not NEUTRAL_MIN_US <= neutral <= NEUTRAL_MAX_US or direction not in (-1, 1):
-            raise ProtocolError(ErrorCode.BAD_PAYLOAD, "trim: servo 0/1, neutral 1300..1700 us, direction ±1")
+            raise FrameError(ErrorCode.BAD_PAYLOAD, "trim: servo 0/1, neutral 1300..1700 us, direction ±1")
     return Frame(epoch, seq, mtype, bytes(payload), version)
 
 
@@ -212,8 +216,8 @@ class FrameDecoder:
                 try:
                     frames.append(decode_body(bytes(self._buffer)))
                     self.frames_ok += 1
-                except ProtocolError as exc:
-                    self.errors[ErrorCode(exc.code)] += 1
+                except FrameError as exc:
+                    self.errors[exc.code] += 1
             self._buffer.clear()
             self._overflow = False
         return frames
@@ -228,7 +232,7 @@ def newer(seq: int, last: int) -> bool:
 # payload helpers --------------------------------------------------------------------------
 def set_speeds_payload(right: int, left: int) -> bytes:
     if right not in (-1, 0, 1) or left not in (-1, 0, 1):
-        raise ProtocolError(ErrorCode.BAD_PAYLOAD, f"speeds ({right}, {left}) must each be -1, 0 or +1")
+        raise FrameError(ErrorCode.BAD_PAYLOAD, f"speeds ({right}, {left}) must each be -1, 0 or +1")
     return struct.pack("<bb", right, left)
 
 
@@ -285,6 +289,15 @@ class DropReason(enum.Enum):
 
 
 @dataclass(frozen=True)
+class DatagramError(ProtocolError):
+    """A datagram refused; ``code`` says why."""
+
+    def __init__(self, code: DropReason, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
 class Datagram:
     type: int
     sender: int
@@ -304,7 +317,7 @@ def encode_datagram(datagram: Datagram, key: bytes) -> bytes:
     body = UDP_HEADER.pack(UDP_MAGIC, datagram.version, datagram.type, datagram.sender, datagram.epoch,
                            datagram.counter) + datagram.payload
     if len(body) + MAC_SIZE > MAX_DATAGRAM:
-        raise ProtocolError(DropReason.MALFORMED, "datagram too long")
+        raise DatagramError(DropReason.MALFORMED, "datagram too long")
     return body + _mac(key, body)
 
 
@@ -312,23 +325,23 @@ def decode_datagram(data: bytes, key: bytes) -> Datagram:
     """Check size, magic, version and MAC (constant time, before anything else is
     trusted), then the type and payload. Replay policy is :class:`ReplayGuard`'s."""
     if not UDP_HEADER_SIZE + MAC_SIZE <= len(data) <= MAX_DATAGRAM:
-        raise ProtocolError(DropReason.MALFORMED, f"datagram of {len(data)} bytes")
+        raise DatagramError(DropReason.MALFORMED, f"datagram of {len(data)} bytes")
     body, tag = data[:-MAC_SIZE], data[-MAC_SIZE:]
     if not hmac.compare_digest(_mac(key, body), tag):
-        raise ProtocolError(DropReason.UNAUTHENTICATED, "MAC mismatch")
+        raise DatagramError(DropReason.UNAUTHENTICATED, "MAC mismatch")
     magic, version, dtype, sender, epoch, counter = UDP_HEADER.unpack_from(body)
     if magic != UDP_MAGIC or version != PROTOCOL_VERSION:
-        raise ProtocolError(DropReason.MALFORMED, f"magic {magic!r} version {version}")
+        raise DatagramError(DropReason.MALFORMED, f"magic {magic!r} version {version}")
     payload = body[UDP_HEADER_SIZE:]
     try:
         kind = UdpType(dtype)
     except ValueError:
-        raise ProtocolError(DropReason.OUT_OF_RANGE, f"unknown datagram type 0x{dtype:02x}") from None
+        raise DatagramError(DropReason.OUT_OF_RANGE, f"unknown datagram type 0x{dtype:02x}") from None
     sizes = {UdpType.COMMAND: 2, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: 4}
     if kind in sizes and len(payload) != sizes[kind]:
-        raise ProtocolError(DropReason.OUT_OF_RANGE, f"{kind.name} payload of {len(payload)} bytes")
+        raise DatagramError(DropReason.OUT_OF_RANGE, f"{kind.name} payload of {len(payload)} bytes")
     if kind is UdpType.COMMAND and any(v not in (-1, 0, 1) for v in struct.unpack("<bb", payload)):
-        raise ProtocolError(DropReason.OUT_OF_RANGE, "speeds must be -1, 0 or +1")
+        raise DatagramError(DropReason.OUT_OF_RANGE, "speeds must be -1, 0 or +1")
     return Datagram(dtype, sender, epoch, counter, bytes(payload), version)
 
 
