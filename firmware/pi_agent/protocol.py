@@ -288,7 +288,6 @@ class DropReason(enum.Enum):
     RATE_LIMITED = "rate_limited"  #: superseded by a newer command within the 100 ms slot
 
 
-@dataclass(frozen=True)
 class DatagramError(ProtocolError):
     """A datagram refused; ``code`` says why."""
 
