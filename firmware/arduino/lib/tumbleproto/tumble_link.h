@@ -24,7 +24,9 @@ class Port {
  public:
   virtual void write(const uint8_t* data, size_t len) = 0;  // bytes onto the serial line
   virtual void saveTrim(const Trim& trim) = 0;               // persist (EEPROM on the Uno)
-  virtual ~Port() = default;
+
+ protected:
+  ~Port() = default;  // never deleted through a Port pointer (no heap on the Uno)
 };
 
 struct Counters {
