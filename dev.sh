@@ -3,6 +3,7 @@
 #
 #   ./dev.sh demo   set up .venv (simulation extras, no torch) and run the main job
 #   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types and all tests
+#                   (firmware build with avr-gcc, C++ host tests with ctest, then pytest)
 #   ./dev.sh setup  set up .venv with everything, run nothing
 #
 # Works on a fresh Debian/Ubuntu machine with Python 3.11: missing system packages are
@@ -49,6 +50,9 @@ ensure_venv() {
     "$VENV/bin/python" -m pip install -q -e ".[$1]" --config-settings editable_mode=strict
 }
 
+# Debian packages the firmware build, its host tests and the AVR emulator tests need.
+FIRMWARE_PACKAGES="gcc-avr avr-libc binutils-avr arduino-core-avr cmake g++ doctest-dev simavr libsimavr-dev libsimavrparts1 libelf-dev pkg-config"
+
 cmd=${1:-help}
 case "$cmd" in
     demo)
@@ -60,8 +64,15 @@ case "$cmd" in
         ensure_venv "train,dev"
         ;;
     test)
-        ensure_venv "train,dev"
+        apt_install $FIRMWARE_PACKAGES
+        ensure_venv "train,dev,agent"
         shift
+        echo "dev.sh: firmware build (Debian avr-gcc)"
+        make -s -C firmware/arduino
+        echo "dev.sh: firmware host tests (CMake/ctest, ASan+UBSan)"
+        cmake -S firmware/arduino/test -B build/firmware-tests -DCMAKE_BUILD_TYPE=Debug >/dev/null
+        cmake --build build/firmware-tests -j 2 >/dev/null
+        ctest --test-dir build/firmware-tests --output-on-failure
         echo "dev.sh: ruff"
         "$VENV/bin/ruff" check .
         echo "dev.sh: mypy"
@@ -71,7 +82,7 @@ case "$cmd" in
         "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n '2,9p' "$0"
+        sed -n '2,10p' "$0"
         exit 2
         ;;
 esac
