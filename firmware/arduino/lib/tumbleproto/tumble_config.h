@@ -11,7 +11,8 @@ constexpr uint8_t kFirmwarePatch = 0;
 
 constexpr uint32_t kBaudRate = 115200;          // serial link, 8N1
 
-constexpr uint16_t kLinkTimeoutMs = 300;        // no valid SET_SPEEDS for this long: both servos neutral
+constexpr uint16_t kLinkTimeoutMs = 250;        // no valid SET_SPEEDS for this long: both servos neutral
+                                                // (applied at the next 20 ms frame: neutral within 300 ms)
 constexpr uint16_t kReadyIntervalMs = 500;      // READY is repeated this often until the first valid frame
 
 constexpr uint16_t kNeutralUs = 1500;           // default servo neutral pulse, microseconds

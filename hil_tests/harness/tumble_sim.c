@@ -1,0 +1,165 @@
+/*
+ * tumble_sim: run the tumblebot firmware ELF in simavr (ATmega328P, 16 MHz) with UART0
+ * bridged to a pseudo-terminal, and report the servo pulse widths measured on D9 (PB1,
+ * right servo) and D10 (PB2, left servo) from their pin edges.
+ *
+ *   tumble_sim FIRMWARE.elf [--unpaced]
+ *
+ * stdout, one event per line (times are simulated microseconds since the first start):
+ *   @pty /dev/pts/N         the port to open (lines without "@" are simavr chatter)
+ *   @started                the AVR runs (after "start" on stdin)
+ *   @pulse T PIN WIDTH      a new pulse width in microseconds (0.1 us) on PIN 9 or 10, printed
+ *                           when it differs from the last one by more than 0.75 us
+ *   @reset T                the AVR was reset (command or watchdog)
+ *
+ * stdin commands: "start" (begin running: open the pty first, pyserial's open() discards
+ * pending input), "reset" (reset the AVR now), "quit".
+ *
+ * The simulation is paced to the wall clock by default (real-time peers: the agent's
+ * watchdogs); --unpaced runs as fast as it can (about 9.6x real time).
+ * Never calls uart_pty_stop(), which can hang; exiting the process ends its thread.
+ */
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_timer.h>
+#include <simavr/parts/uart_pty.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+
+static avr_t *avr;
+static uart_pty_t uart_pty;
+static avr_cycle_count_t rise[2];
+static double last_width[2] = {-1.0, -1.0};
+static const int pins[2] = {9, 10};
+static avr_cycle_count_t cycle_offset;  /* cycles before the last reset, so time is monotonic */
+
+static unsigned long long sim_us(void) {
+  return (unsigned long long)((cycle_offset + avr->cycle) / (avr->frequency / 1000000));
+}
+
+static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  const int ch = (int)(long)param;
+  if (getenv("TUMBLE_SIM_DEBUG")) fprintf(stderr, "irq ch=%d value=%u cycle=%llu\n", ch, value, (unsigned long long)avr->cycle);
+  if (value) {
+    rise[ch] = avr->cycle;
+  } else if (rise[ch] != 0 && avr->cycle > rise[ch]) {
+    const double width = (double)(avr->cycle - rise[ch]) / (avr->frequency / 1e6);
+    if (width > last_width[ch] + 0.75 || width < last_width[ch] - 0.75) {  /* ignore cycle jitter */
+      last_width[ch] = width;
+      printf("@pulse %llu %d %.1f\n", sim_us(), pins[ch], width);
+      fflush(stdout);
+    }
+  }
+}
+
+static double wall_seconds(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* Returns 1 to keep going, 0 to quit; -1 when nothing was read. */
+static int read_command(int *start, int *reset) {
+  static char line[64];
+  static size_t len;
+  char c;
+  ssize_t n;
+  while ((n = read(STDIN_FILENO, &c, 1)) == 1) {
+    if (c != '\n') {
+      if (len < sizeof line - 1) line[len++] = c;
+      continue;
+    }
+    line[len] = 0;
+    len = 0;
+    if (strcmp(line, "start") == 0) *start = 1;
+    else if (strcmp(line, "reset") == 0) *reset = 1;
+    else if (strcmp(line, "quit") == 0) return 0;
+  }
+  if (n == 0) return 0;  /* stdin closed: the test is gone */
+  return 1;
+}
+
+static void do_reset(void) {
+  cycle_offset += avr->cycle;
+  avr_reset(avr);
+  rise[0] = rise[1] = 0;
+  last_width[0] = last_width[1] = -1.0;
+  printf("@reset %llu\n", sim_us());
+  fflush(stdout);
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2) {
+    fprintf(stderr, "usage: %s FIRMWARE.elf [--unpaced]\n", argv[0]);
+    return 2;
+  }
+  const int paced = !(argc > 2 && strcmp(argv[2], "--unpaced") == 0);
+  elf_firmware_t fw;
+  memset(&fw, 0, sizeof fw);
+  if (elf_read_firmware(argv[1], &fw) != 0) {
+    fprintf(stderr, "tumble_sim: cannot read %s\n", argv[1]);
+    return 1;
+  }
+  avr = avr_make_mcu_by_name("atmega328p");
+  if (!avr) {
+    fprintf(stderr, "tumble_sim: simavr has no atmega328p\n");
+    return 1;
+  }
+  avr_init(avr);
+  avr->frequency = 16000000;
+  avr_load_firmware(avr, &fw);
+  avr->frequency = 16000000;
+
+  uart_pty_init(avr, &uart_pty);
+  uart_pty_connect(&uart_pty, '0');
+  for (int ch = 0; ch < 2; ++ch) {
+    /* Timer1's compare outputs OC1A (PB1, D9) and OC1B (PB2, D10): simavr drives them
+     * through these IRQs (the ioport pin IRQs do not see hardware PWM). */
+    avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_TIMER_GETIRQ('1'), TIMER_IRQ_OUT_COMP + ch);
+    avr_irq_register_notify(irq, pin_changed, (void *)(long)ch);
+  }
+  printf("@pty %s\n", uart_pty.port[0].slavename);
+  fflush(stdout);
+
+  fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
+  int start = 0, reset = 0;
+  while (!start) {
+    struct pollfd pfd = {STDIN_FILENO, POLLIN, 0};
+    poll(&pfd, 1, 100);
+    if (read_command(&start, &reset) == 0) return 0;
+  }
+  printf("@started\n");
+  fflush(stdout);
+
+  const double t0 = wall_seconds();
+  avr_cycle_count_t next_check = 0;
+  for (;;) {
+    const int state = avr_run(avr);
+    if (state == cpu_Done || state == cpu_Crashed) {
+      do_reset();  /* a crashed AVR reboots, as the real one would via its watchdog */
+    }
+    const avr_cycle_count_t now = cycle_offset + avr->cycle;
+    if (now < next_check) continue;
+    next_check = now + 16000;  /* every simulated millisecond */
+    if (read_command(&start, &reset) == 0) break;
+    if (reset) {
+      reset = 0;
+      do_reset();
+    }
+    if (paced) {
+      const double ahead = (double)now / 16e6 - (wall_seconds() - t0);
+      if (ahead > 0.0005) usleep((useconds_t)(ahead * 1e6));
+    }
+  }
+  fflush(stdout);
+  _exit(0);
+}
