@@ -1,0 +1,83 @@
+"""Fixtures for the hardware-in-the-loop tests: the real firmware in simavr."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from tumblebot.pi_agent import protocol as P
+
+from emulator import EmulatedUno
+
+
+class Link:
+    """The agent's view of the serial line: send frames, read frames, learn the epoch."""
+
+    def __init__(self, uno: EmulatedUno) -> None:
+        self.uno = uno
+        self.decoder = P.FrameDecoder()
+        self.epoch: int | None = None
+        self.seq = 0
+        self.received: list[P.Frame] = []
+
+    def read(self, seconds: float) -> list[P.Frame]:
+        import time
+
+        frames: list[P.Frame] = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            frames += self.decoder.feed(self.uno.port.read(256))
+        self.received += frames
+        return frames
+
+    def wait_ready(self, timeout: float = 3.0) -> P.Frame:
+        import time
+
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for f in self.read(0.05):
+                if f.type == P.MsgType.READY:
+                    self.epoch = f.epoch
+                    return f
+        raise TimeoutError("no READY from the firmware")
+
+    def send(self, mtype: P.MsgType, payload: bytes = b"", seq: int | None = None, epoch: int | None = None) -> int:
+        if seq is None:
+            self.seq = (self.seq + 1) & 0xFFFF
+            seq = self.seq
+        assert self.epoch is not None or epoch is not None
+        frame = P.Frame(self.epoch if epoch is None else epoch, seq, mtype, payload)
+        self.uno.write(P.encode_frame(frame))
+        return seq
+
+    def speeds(self, right: int, left: int) -> int:
+        return self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left))
+
+    def status(self, timeout: float = 1.0) -> P.Status:
+        import time
+
+        self.send(P.MsgType.GET_STATUS)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for f in self.read(0.02):
+                if f.type == P.MsgType.STATUS:
+                    return P.Status.unpack(f.payload)
+        raise TimeoutError("no STATUS reply")
+
+
+@pytest.fixture
+def uno() -> Iterator[EmulatedUno]:
+    with EmulatedUno() as emulated:
+        yield emulated
+
+
+@pytest.fixture
+def link(uno: EmulatedUno) -> Link:
+    link = Link(uno)
+    link.wait_ready()
+    return link

@@ -1,0 +1,142 @@
+"""The real firmware ELF in simavr, driven over its UART exactly as the Pi agent does."""
+
+from __future__ import annotations
+
+import random
+import time
+
+import pytest
+
+from tumblebot.pi_agent import protocol as P
+
+from conftest import Link
+from emulator import EmulatedUno
+
+NEUTRAL, FULL_FWD_RIGHT, FULL_FWD_LEFT = 1500.5, 2000.5, 1000.5  # left servo is mirrored
+
+
+def test_that_set_speeds_reaches_the_pins_within_50_ms(uno: EmulatedUno, link: Link) -> None:
+    for right, left in ((1, 1), (-1, 0), (0, -1), (1, -1)):
+        start = time.monotonic()
+        link.speeds(right, left)
+        elapsed = uno.wait_for(NEUTRAL + 500 * right, NEUTRAL - 500 * left, timeout=1.0, tolerance=1.0)
+        assert elapsed < 0.050, f"({right}, {left}) took {elapsed * 1e3:.1f} ms"
+        time.sleep(max(0.0, 0.1 - (time.monotonic() - start)))
+
+
+def test_that_the_watchdog_returns_both_servos_to_neutral_within_300_ms_every_time(uno: EmulatedUno,
+                                                                                  link: Link) -> None:
+    for _ in range(3):
+        link.speeds(1, 1)
+        uno.wait_for(FULL_FWD_RIGHT, FULL_FWD_LEFT, timeout=1.0, tolerance=1.0)
+        last_command = time.monotonic()
+        # keep the link alive for a while, as the agent does at 10 Hz
+        for _ in range(3):
+            time.sleep(0.1)
+            link.speeds(1, 1)
+            last_command = time.monotonic()
+        uno.wait_for(NEUTRAL, NEUTRAL, timeout=1.0, tolerance=10.0)
+        assert time.monotonic() - last_command < 0.300 + 0.015  # + the harness's report latency
+        assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=10)
+    assert link.status().watchdog_trips == 3
+
+
+def test_that_the_servos_stay_neutral_at_boot_until_a_valid_command_after_ready(uno: EmulatedUno) -> None:
+    link = Link(uno)
+    ready = link.wait_ready()
+    assert ready.payload[0] == P.PROTOCOL_VERSION
+    link.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(1, 1), epoch=(ready.epoch + 1) & 0xFFFF)  # stale epoch
+    time.sleep(0.2)
+    assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
+    errors = [f for f in link.read(0.1) + link.received if f.type == P.MsgType.ERROR]
+    assert errors and errors[0].payload[0] == P.ErrorCode.STALE_EPOCH
+    link.speeds(1, 1)
+    uno.wait_for(FULL_FWD_RIGHT, FULL_FWD_LEFT, timeout=0.1, tolerance=1.0)
+
+
+def test_that_a_reset_mid_run_is_neutral_until_a_new_valid_command(uno: EmulatedUno, link: Link) -> None:
+    link.speeds(1, 1)
+    uno.wait_for(FULL_FWD_RIGHT, FULL_FWD_LEFT, timeout=0.5, tolerance=1.0)
+    old_epoch = link.epoch
+    uno.reset()
+    ready = link.wait_ready()
+    assert ready.epoch != old_epoch  # the boot epoch changed (EEPROM boot counter)
+    uno.wait_for(NEUTRAL, NEUTRAL, timeout=0.5, tolerance=1.0)
+    link.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(1, 1), epoch=old_epoch)  # a command from before the reset
+    time.sleep(0.15)
+    assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
+    link.speeds(-1, -1)
+    uno.wait_for(NEUTRAL - 500, NEUTRAL + 500, timeout=0.1, tolerance=1.0)
+
+
+class FirmwareModel:
+    """What the firmware should count for a byte stream (its rules, in Python)."""
+
+    def __init__(self, epoch: int, last_seq: int) -> None:
+        self.decoder = P.FrameDecoder()
+        self.epoch, self.last_seq = epoch, last_seq
+        self.ok = self.other = 0
+        self.actuating: list[P.Frame] = []
+
+    def feed(self, data: bytes) -> None:
+        for f in self.decoder.feed(data):
+            if f.type >= 0x80 or f.epoch != self.epoch or not P.newer(f.seq, self.last_seq):
+                self.other += 1
+                continue
+            self.ok += 1
+            self.last_seq = f.seq
+            if f.type == P.MsgType.SET_SPEEDS:
+                self.actuating.append(f)
+
+    @property
+    def crc(self) -> int:
+        return self.decoder.errors[P.ErrorCode.BAD_CRC]
+
+    @property
+    def refused(self) -> int:
+        return sum(n for code, n in self.decoder.errors.items() if code != P.ErrorCode.BAD_CRC) + self.other
+
+
+@pytest.mark.slow
+def test_that_noise_and_mutated_frames_never_actuate_and_are_all_counted() -> None:
+    with EmulatedUno(paced=False) as uno:
+        link = Link(uno)
+        link.wait_ready()
+        link.speeds(1, -1)
+        uno.wait_for(FULL_FWD_RIGHT, FULL_FWD_RIGHT, timeout=1.0, tolerance=1.0)
+        before = link.status()
+        assert link.epoch is not None
+        model = FirmwareModel(link.epoch, link.seq)
+        start = time.monotonic()
+        rng = random.Random(2024)
+        chunk = 256
+        noise_bytes = 1_000_000
+        for _ in range(noise_bytes // chunk):
+            data = bytes(rng.getrandbits(8) for _ in range(chunk))
+            model.feed(data)
+            uno.write(data)
+            link.read(0)  # drain replies so the firmware never blocks on a full TX buffer
+        flush = b"\x00"
+        model.feed(flush)
+        uno.write(flush)
+        for i in range(10_000):
+            seq = (link.seq + 1 + i) & 0xFFFF
+            wire = bytearray(P.encode_frame(P.Frame(link.epoch, seq, P.MsgType.SET_SPEEDS,
+                                                     P.set_speeds_payload(1, 1))))
+            wire[rng.randrange(len(wire) - 1)] ^= 1 << rng.randrange(8)
+            data = bytes(wire) + b"\x00"  # resynchronise if the flip hid a delimiter
+            model.feed(data)
+            uno.write(data)
+            if i % 20 == 0:
+                link.read(0)
+        link.seq = (link.seq + 10_000) & 0xFFFF
+        link.read(0.5)
+        after = link.status(timeout=5.0)
+        assert model.actuating == []
+        widths = {round(e.width) for e in uno.events_since(start)}
+        assert widths <= {1500, 1501, 2000, 2001, 1000, 1001}, widths
+        assert after.crc_errors - before.crc_errors == model.crc
+        assert after.other_drops - before.other_drops == model.refused
+        assert after.frames_ok - before.frames_ok == 1  # only the GET_STATUS itself
+        assert uno.resets == []  # the AVR watchdog never fired
+        assert not any(f.type == P.MsgType.READY for f in link.received[1:])
