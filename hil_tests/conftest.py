@@ -52,7 +52,7 @@ class Link:
             seq = self.seq
         assert self.epoch is not None or epoch is not None
         frame = P.Frame(self.epoch if epoch is None else epoch, seq, mtype, payload)
-        self.uno.write(P.encode_frame(frame))
+        self.uno.write(b"\x00" + P.encode_frame(frame))  # leading delimiter: resynchronise after noise
         return seq
 
     def speeds(self, right: int, left: int) -> int:

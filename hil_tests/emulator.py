@@ -8,6 +8,7 @@ measures from the pins.
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import threading
 import time
@@ -51,8 +52,8 @@ class EmulatedUno:
         if not self.pty:
             raise RuntimeError("tumble_sim did not report its pty")
         self.port = serial.serial_for_url(self.pty, baudrate=baud, timeout=0.05)
-        line_rate = baud / 11  # simavr counts 11 bits per 8N1 byte
-        self._bytes_per_second = 0.8 * line_rate * (1.0 if paced else 3.0)
+        self.baud = baud
+        self.sim_us = 0  #: latest simulated time reported by the harness
         self.events: list[PulseEvent] = []
         self.resets: list[float] = []
         self.chatter: list[str] = []  #: simavr's own messages (not events)
@@ -65,21 +66,25 @@ class EmulatedUno:
         if not self._started.wait(10):
             raise RuntimeError("tumble_sim did not start")
 
-    def write(self, data: bytes, chunk: int = 32) -> None:
+    def write(self, data: bytes, chunk: int = 16) -> None:
         """Write to the UART no faster than the emulated line can take it.
 
-        simavr 1.6's pty bridge stalls for good when a large burst arrives at once (found
-        here: 2 kB of noise in one write() and the firmware never hears another byte), so
-        bytes go in small chunks at 80 % of 115 200 baud of simulated time (about 3x that
-        when unpaced; the emulator runs ~9.6x real time).
+        simavr 1.6's pty bridge stalls for good once too many bytes wait in it (found
+        here: 2 kB of noise in one write(), or a steady stream faster than the emulator
+        runs, and the firmware never hears another byte). So bytes go in small chunks,
+        each only when simulated time has caught up with the line time (11 bits per byte
+        at the baud rate, +25 %) of what was written before, minus a 3 ms window.
         """
-        rate = self._bytes_per_second
-        start = time.monotonic()
+        byte_time_us = 11e6 / self.baud * 1.25
+        start = self.sim_us
         for i in range(0, len(data), chunk):
+            due = start + i * byte_time_us - 3000
+            deadline = time.monotonic() + 10
+            while self.sim_us < due:
+                if time.monotonic() > deadline:
+                    raise TimeoutError("the emulator stopped advancing")
+                time.sleep(0.0005)
             self.port.write(data[i:i + chunk])
-            wait = start + (i + chunk) / rate - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
 
     def _command(self, text: str) -> None:
         assert self.proc.stdin is not None
@@ -96,6 +101,8 @@ class EmulatedUno:
             now = time.monotonic()
             if parts[0] == "@started":
                 self._started.set()
+            elif parts[0] == "@time":
+                self.sim_us = int(parts[1])
             elif parts[0] == "@pulse":
                 ev = PulseEvent(now, int(parts[1]), int(parts[2]), float(parts[3]))
                 with self._lock:
@@ -129,10 +136,8 @@ class EmulatedUno:
         raise TimeoutError(f"pulses {self.widths()} did not reach ({right}, {left}) within {timeout} s")
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(BrokenPipeError, ValueError):
             self._command("quit")
-        except (BrokenPipeError, ValueError):
-            pass
         try:
             self.proc.wait(timeout=5)
         except subprocess.TimeoutExpired:

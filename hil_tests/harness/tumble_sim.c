@@ -11,6 +11,7 @@
  *   @pulse T PIN WIDTH      a new pulse width in microseconds (0.1 us) on PIN 9 or 10, printed
  *                           when it differs from the last one by more than 0.75 us
  *   @reset T                the AVR was reset (command or watchdog)
+ *   @time T                 simulated time, every 5 simulated milliseconds (for flow control)
  *
  * stdin commands: "start" (begin running: open the pty first, pyserial's open() discards
  * pending input), "reset" (reset the AVR now), "quit".
@@ -150,6 +151,10 @@ int main(int argc, char **argv) {
     const avr_cycle_count_t now = cycle_offset + avr->cycle;
     if (now < next_check) continue;
     next_check = now + 16000;  /* every simulated millisecond */
+    if ((now / 16000) % 5 == 0) {
+      printf("@time %llu\n", sim_us());
+      fflush(stdout);
+    }
     if (read_command(&start, &reset) == 0) break;
     if (reset) {
       reset = 0;

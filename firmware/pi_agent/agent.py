@@ -1,0 +1,364 @@
+"""The Raspberry Pi agent: authenticated UDP commands in, framed serial commands out.
+
+Run ``tumblebot-agent --config /etc/tumblebot/agent.toml``. Needs pyserial and the
+standard library only. Behaviour (docs/protocol.md has the wire formats):
+
+* binds to the configured address and port only, and takes datagrams from the allowed
+  host only; every datagram is authenticated (HMAC-SHA256) before anything else;
+* acts on at most 10 commands per second: a command arriving sooner is held and the
+  latest one wins at the next slot;
+* resends the current command to the Arduino every 100 ms (the firmware's watchdog
+  stops the servos 250 ms after the last one);
+* commands stop when no valid datagram has arrived from the host for 1 s;
+* after opening the port (which resets an Uno) it waits for READY, adopts the boot
+  epoch, and restarts its sequence numbers whenever the epoch changes;
+* a serial device that errors, or that answers no PING for 1 s, is closed and reopened
+  with back-off (0.25 s doubling to 4 s);
+* answers TELEMETRY_REQUEST with a JSON telemetry datagram: link loss over the last 100
+  pings, datagram drops by reason, round-trip times, the firmware's last STATUS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import logging
+import select
+import socket
+import stat
+import struct
+import sys
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from tumblebot.pi_agent import protocol as P
+
+log = logging.getLogger("tumblebot.agent")
+
+COMMAND_INTERVAL = 0.1  #: s, at most 10 commands per second
+KEEPALIVE_INTERVAL = 0.1  #: s, resend the current command to the Arduino
+HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
+SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
+READY_TIMEOUT = 3.0  #: s to wait for READY after opening the port
+BACKOFF_MIN, BACKOFF_MAX = 0.25, 4.0  #: s, reconnect back-off
+
+
+class AgentError(Exception):
+    """A configuration or key problem; the command prints it as one line."""
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    serial_port: str = "/dev/ttyACM0"  #: a pyserial URL (a device path, loop://, socket://…)
+    baud: int = P.BAUD_RATE
+    bind_address: str = "0.0.0.0"
+    bind_port: int = P.DEFAULT_PORT
+    allowed_host: str = "127.0.0.1"  #: datagrams from any other address are dropped
+    key_file: str = "/etc/tumblebot/agent.key"
+    agent_id: int = 1  #: sender id of telemetry datagrams
+
+    @classmethod
+    def load(cls, path: Path) -> AgentConfig:
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise AgentError(f"config file {path} does not exist") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise AgentError(f"config file {path} is not valid TOML: {exc}") from None
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise AgentError(f"config file {path}: unknown keys {', '.join(unknown)}")
+        config = cls(**data)
+        if not 0 < config.bind_port < 65536:
+            raise AgentError(f"bind_port {config.bind_port} is not a UDP port")
+        try:
+            socket.inet_pton(socket.AF_INET, config.allowed_host)
+        except OSError:
+            raise AgentError(f"allowed_host {config.allowed_host!r} must be an IPv4 address") from None
+        return config
+
+
+def load_key(path: Path) -> bytes:
+    """Read the 32-byte shared key; refuse a file others can read or write."""
+    try:
+        st = path.stat()
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise AgentError(f"key file {path} does not exist") from None
+    if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise AgentError(f"key file {path} is accessible by group or others (chmod 600 {path})")
+    if len(data) != P.KEY_SIZE:
+        raise AgentError(f"key file {path} must hold exactly {P.KEY_SIZE} bytes, not {len(data)}")
+    return data
+
+
+SerialFactory = Callable[[str, int], Any]
+
+
+def open_serial(url: str, baud: int) -> Any:
+    import serial
+
+    return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0.5)
+
+
+class SerialLink:
+    """The Arduino end: connection state, epoch, sequence numbers, pings, status."""
+
+    def __init__(self, url: str, baud: int, factory: SerialFactory = open_serial) -> None:
+        self.url, self.baud, self.factory = url, baud, factory
+        self.port: Any = None
+        self.decoder = P.FrameDecoder()
+        self.epoch: int | None = None
+        self.seq = 0
+        self.opened_at = 0.0
+        self.last_rx = 0.0
+        self.next_attempt = 0.0
+        self.backoff = BACKOFF_MIN
+        self.pings: collections.deque[tuple[int, float, float | None]] = collections.deque(maxlen=100)
+        self.ping_token = 0
+        self.status: P.Status | None = None
+        self.reconnects = 0
+        self.errors_reported: collections.Counter[str] = collections.Counter()
+
+    @property
+    def ready(self) -> bool:
+        return self.port is not None and self.epoch is not None
+
+    def poll(self, now: float) -> None:
+        """Open if closed (with back-off), read what arrived, detect a dead link."""
+        if self.port is None:
+            if now >= self.next_attempt:
+                self._open(now)
+            return
+        try:
+            data = self.port.read(self.port.in_waiting or 1)
+        except (OSError, Exception) as exc:  # pyserial raises SerialException (an OSError subclass)
+            self._lost(now, f"read failed: {exc}")
+            return
+        if data:
+            for frame in self.decoder.feed(data):
+                self._on_frame(frame, now)
+        if self.epoch is None and now - self.opened_at > READY_TIMEOUT:
+            self._lost(now, "no READY after opening the port")
+        elif self.epoch is not None and now - self.last_rx > SERIAL_SILENCE:
+            self._lost(now, f"no frame from the Arduino for {SERIAL_SILENCE} s")
+
+    def _open(self, now: float) -> None:
+        try:
+            self.port = self.factory(self.url, self.baud)
+        except (OSError, Exception) as exc:
+            log.warning("cannot open %s: %s (retry in %.2f s)", self.url, exc, self.backoff)
+            self.next_attempt = now + self.backoff
+            self.backoff = min(self.backoff * 2, BACKOFF_MAX)
+            return
+        log.info("opened %s, waiting for READY", self.url)
+        self.decoder = P.FrameDecoder()
+        self.epoch = None
+        self.opened_at = self.last_rx = now
+
+    def _lost(self, now: float, why: str) -> None:
+        log.warning("serial link lost: %s", why)
+        try:
+            if self.port is not None:
+                self.port.close()
+        except Exception:  # closing a vanished device may fail too
+            pass
+        self.port = None
+        self.epoch = None
+        self.reconnects += 1
+        self.next_attempt = now + self.backoff
+        self.backoff = min(self.backoff * 2, BACKOFF_MAX)
+
+    def _on_frame(self, frame: P.Frame, now: float) -> None:
+        self.last_rx = now
+        if frame.type == P.MsgType.READY:
+            if frame.epoch != self.epoch:
+                log.info("firmware READY, epoch %d (protocol %d, firmware %d.%d.%d)", frame.epoch, *frame.payload)
+                self.epoch = frame.epoch
+                self.seq = 0  # a new boot: our sequence numbers start over
+            self.backoff = BACKOFF_MIN
+        elif frame.epoch != self.epoch:
+            if self.epoch is not None:
+                log.warning("frame from epoch %d while in %d: the Arduino rebooted", frame.epoch, self.epoch)
+            self.epoch = frame.epoch  # ERROR/STATUS replies tell us the live epoch too
+            self.seq = 0
+        if frame.type == P.MsgType.PONG:
+            (token,) = struct.unpack("<I", frame.payload)
+            for i, (t, sent, _) in enumerate(self.pings):
+                if t == token:
+                    self.pings[i] = (t, sent, now - sent)
+                    break
+        elif frame.type == P.MsgType.STATUS:
+            self.status = P.Status.unpack(frame.payload)
+        elif frame.type == P.MsgType.ERROR:
+            self.errors_reported[P.ErrorCode(frame.payload[0]).name] += 1
+
+    def send(self, mtype: P.MsgType, payload: bytes, now: float) -> bool:
+        if not self.ready:
+            return False
+        self.seq = (self.seq + 1) & 0xFFFF
+        assert self.epoch is not None
+        try:
+            # A leading delimiter ends any garbage the Arduino may hold, so this frame decodes.
+            self.port.write(b"\x00" + P.encode_frame(P.Frame(self.epoch, self.seq, mtype, payload)))
+        except (OSError, Exception) as exc:
+            self._lost(now, f"write failed: {exc}")
+            return False
+        return True
+
+    def send_speeds(self, right: int, left: int, now: float) -> bool:
+        return self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left), now)
+
+    def ping(self, now: float) -> None:
+        self.ping_token = (self.ping_token + 1) & 0xFFFFFFFF
+        if self.send(P.MsgType.PING, struct.pack("<I", self.ping_token), now):
+            self.pings.append((self.ping_token, now, None))
+
+    def telemetry(self, now: float) -> dict[str, Any]:
+        settled = [p for p in self.pings if now - p[1] > 0.5 or p[2] is not None]
+        lost = sum(1 for p in settled if p[2] is None)
+        rtts = sorted(p[2] for p in settled if p[2] is not None)
+        return {
+            "serial_connected": self.ready,
+            "epoch": self.epoch,
+            "link_loss": lost / len(settled) if settled else None,
+            "rtt_ms": {"median": 1e3 * rtts[len(rtts) // 2], "max": 1e3 * rtts[-1]} if rtts else None,
+            "reconnects": self.reconnects,
+            "firmware_errors": dict(self.errors_reported),
+            "firmware_status": asdict(self.status) if self.status else None,
+        }
+
+
+class Agent:
+    """UDP in, serial out. ``step()`` does one round of work; ``run()`` loops."""
+
+    def __init__(self, config: AgentConfig, key: bytes, serial_factory: SerialFactory = open_serial) -> None:
+        self.config, self.key = config, key
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((config.bind_address, config.bind_port))
+        self.sock.setblocking(False)
+        self.link = SerialLink(config.serial_port, config.baud, serial_factory)
+        self.guard = P.ReplayGuard()
+        self.drops: collections.Counter[str] = collections.Counter()
+        self.accepted = 0
+        self.command = (0, 0)  #: what the Arduino is being told
+        self.pending: tuple[int, int] | None = None
+        self.last_acted = -1e9
+        self.last_valid = -1e9
+        self.last_keepalive = -1e9
+        self.telemetry_counter = 0
+        self.epoch = int(time.time())
+
+    @property
+    def address(self) -> tuple[str, int]:
+        host, port = self.sock.getsockname()
+        return host, port
+
+    def _drop(self, reason: P.DropReason) -> None:
+        self.drops[reason.value] += 1
+
+    def handle_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        if source[0] != self.config.allowed_host:
+            self._drop(P.DropReason.FOREIGN_HOST)
+            return
+        try:
+            d = P.decode_datagram(data, self.key)
+        except P.DatagramError as exc:
+            self._drop(exc.code)
+            return
+        reason = self.guard.check(d)
+        if reason is not None:
+            self._drop(reason)
+            return
+        self.accepted += 1
+        self.last_valid = now
+        if d.type == P.UdpType.COMMAND:
+            right, left = struct.unpack("<bb", d.payload)
+            if self.pending is not None:
+                self._drop(P.DropReason.RATE_LIMITED)  # superseded before it acted
+            self.pending = (right, left)
+        elif d.type == P.UdpType.STOP:
+            self.pending = None
+            self._apply((0, 0), now)  # a stop never waits for a slot
+        elif d.type == P.UdpType.TELEMETRY_REQUEST:
+            self._send_telemetry(source, d.payload, now)
+
+    def _apply(self, command: tuple[int, int], now: float) -> None:
+        self.command = command
+        self.last_acted = now
+        self.link.send_speeds(*command, now)
+        self.last_keepalive = now
+
+    def _send_telemetry(self, dest: tuple[str, int], nonce: bytes, now: float) -> None:
+        body = {"nonce": struct.unpack("<I", nonce)[0], "command": list(self.command),
+                "accepted": self.accepted, "drops": dict(self.drops), **self.link.telemetry(now)}
+        self.telemetry_counter += 1
+        payload = json.dumps(body, separators=(",", ":")).encode()
+        dgram = P.Datagram(P.UdpType.TELEMETRY, self.config.agent_id, self.epoch, self.telemetry_counter, payload)
+        try:
+            self.sock.sendto(P.encode_datagram(dgram, self.key), dest)
+        except (OSError, P.DatagramError) as exc:
+            log.warning("cannot send telemetry: %s", exc)
+
+    def step(self, timeout: float = 0.01) -> None:
+        readable, _, _ = select.select([self.sock], [], [], timeout)
+        now = time.monotonic()
+        if readable:
+            for _ in range(64):  # drain, bounded
+                try:
+                    data, source = self.sock.recvfrom(P.MAX_DATAGRAM + 1)
+                except BlockingIOError:
+                    break
+                self.handle_datagram(data, source, now)
+        self.link.poll(now)
+        if self.pending is not None and now - self.last_acted >= COMMAND_INTERVAL:
+            command, self.pending = self.pending, None
+            self._apply(command, now)
+        if self.command != (0, 0) and now - self.last_valid > HOST_TIMEOUT:
+            log.warning("no valid datagram from the host for %.1f s: stopping", HOST_TIMEOUT)
+            self.pending = None
+            self._apply((0, 0), now)
+        if now - self.last_keepalive >= KEEPALIVE_INTERVAL:
+            self.last_keepalive = now
+            self.link.send_speeds(*self.command, now)
+            self.link.ping(now)
+
+    def run(self, stop: Callable[[], bool] = lambda: False) -> None:
+        log.info("listening on %s:%d for %s", *self.address, self.config.allowed_host)
+        try:
+            while not stop():
+                self.step()
+        finally:
+            self.link.send_speeds(0, 0, time.monotonic())
+            self.sock.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="tumblebot-agent", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", type=Path, default=Path("/etc/tumblebot/agent.toml"), help="TOML config file")
+    parser.add_argument("--verbose", action="store_true", help="log every link event")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(message)s")
+    try:
+        config = AgentConfig.load(args.config)
+        key = load_key(Path(config.key_file))
+        agent = Agent(config, key)
+    except (AgentError, OSError) as exc:
+        print(f"tumblebot-agent: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        agent.run()
+    except KeyboardInterrupt:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
