@@ -51,7 +51,7 @@ ensure_venv() {
 }
 
 # Debian packages the firmware build, its host tests and the AVR emulator tests need.
-FIRMWARE_PACKAGES="gcc-avr avr-libc binutils-avr arduino-core-avr cmake g++ doctest-dev simavr libsimavr-dev libsimavrparts1 libelf-dev pkg-config"
+FIRMWARE_PACKAGES="gcc-avr avr-libc binutils-avr arduino-core-avr cmake g++ doctest-dev simavr libsimavr-dev libelf-dev pkg-config"
 
 cmd=${1:-help}
 case "$cmd" in

@@ -51,9 +51,10 @@ class EmulatedUno:
                 break
         if not self.pty:
             raise RuntimeError("tumble_sim did not report its pty")
-        self.port = serial.serial_for_url(self.pty, baudrate=baud, timeout=0.05)
-        self.baud = baud
+        self.port = serial.serial_for_url(self.pty, baudrate=baud, timeout=0.05, write_timeout=5)
         self.sim_us = 0  #: latest simulated time reported by the harness
+        self._byte_time_us = 11e6 / baud * 1.25  # simavr counts 11 bits per 8N1 byte
+        self._line_free_us = 0.0
         self.events: list[PulseEvent] = []
         self.resets: list[float] = []
         self.chatter: list[str] = []  #: simavr's own messages (not events)
@@ -66,25 +67,25 @@ class EmulatedUno:
         if not self._started.wait(10):
             raise RuntimeError("tumble_sim did not start")
 
-    def write(self, data: bytes, chunk: int = 16) -> None:
+    def write(self, data: bytes, chunk: int = 8) -> None:
         """Write to the UART no faster than the emulated line can take it.
 
         simavr 1.6's pty bridge stalls for good once too many bytes wait in it (found
         here: 2 kB of noise in one write(), or a steady stream faster than the emulator
         runs, and the firmware never hears another byte). So bytes go in small chunks,
-        each only when simulated time has caught up with the line time (11 bits per byte
-        at the baud rate, +25 %) of what was written before, minus a 3 ms window.
+        each only when simulated time has caught up with the line time of everything
+        written before (11 bits per byte at the baud rate, +25 %): the emulated UART's
+        receive FIFO never fills, so simavr never has to signal XOFF.
         """
-        byte_time_us = 11e6 / self.baud * 1.25
-        start = self.sim_us
         for i in range(0, len(data), chunk):
-            due = start + i * byte_time_us - 3000
+            piece = data[i:i + chunk]
             deadline = time.monotonic() + 10
-            while self.sim_us < due:
+            while self.sim_us < self._line_free_us:
                 if time.monotonic() > deadline:
                     raise TimeoutError("the emulator stopped advancing")
                 time.sleep(0.0005)
-            self.port.write(data[i:i + chunk])
+            self.port.write(piece)
+            self._line_free_us = max(self._line_free_us, self.sim_us) + len(piece) * self._byte_time_us
 
     def _command(self, text: str) -> None:
         assert self.proc.stdin is not None

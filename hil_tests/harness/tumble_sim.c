@@ -11,14 +11,17 @@
  *   @pulse T PIN WIDTH      a new pulse width in microseconds (0.1 us) on PIN 9 or 10, printed
  *                           when it differs from the last one by more than 0.75 us
  *   @reset T                the AVR was reset (command or watchdog)
- *   @time T                 simulated time, every 5 simulated milliseconds (for flow control)
+ *   @time T                 simulated time, every simulated millisecond (for flow control)
  *
  * stdin commands: "start" (begin running: open the pty first, pyserial's open() discards
  * pending input), "reset" (reset the AVR now), "quit".
  *
  * The simulation is paced to the wall clock by default (real-time peers: the agent's
  * watchdogs); --unpaced runs as fast as it can (about 9.6x real time).
- * Never calls uart_pty_stop(), which can hang; exiting the process ends its thread.
+ *
+ * The UART bridge is our own, run from the simulation loop (no thread): simavr 1.6's
+ * uart_pty part stalls for good when its 512-byte FIFO fills (its thread then never
+ * moves the rest of what it read into the FIFO until the AVR transmits something).
  */
 #include <errno.h>
 #include <fcntl.h>
@@ -29,14 +32,81 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <pty.h>
+#include <termios.h>
+
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_timer.h>
-#include <simavr/parts/uart_pty.h>
+#include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
 #include <simavr/sim_elf.h>
 
 static avr_t *avr;
-static uart_pty_t uart_pty;
+
+/* --- UART0 <-> pseudo-terminal bridge ------------------------------------------------ */
+static int pty_master = -1;
+static char pty_name[128];
+static int uart_xon = 1;                /* the AVR's receive FIFO has room */
+static avr_irq_t *uart_input;           /* raise with a byte: the AVR receives it */
+static uint8_t rx_buf[512];
+static ssize_t rx_len, rx_pos;
+static uint8_t tx_buf[4096];
+static size_t tx_len;
+
+static void uart_output_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq; (void)param;
+  if (tx_len < sizeof tx_buf) tx_buf[tx_len++] = (uint8_t)value;  /* else: the reader is gone */
+}
+static void uart_xon_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq; (void)value; (void)param;
+  uart_xon = 1;
+}
+static void uart_xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq; (void)value; (void)param;
+  uart_xon = 0;
+}
+
+static int bridge_open(void) {
+  int slave;
+  if (openpty(&pty_master, &slave, pty_name, NULL, NULL) < 0) return -1;
+  struct termios tio;
+  tcgetattr(pty_master, &tio);
+  cfmakeraw(&tio);
+  tcsetattr(pty_master, TCSANOW, &tio);
+  fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
+  /* keep `slave` open: the pty must not hang up between test connections */
+  uint32_t flags = 0;
+  avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+  flags &= ~AVR_UART_FLAG_STDIO;
+  avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+  uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_output_hook, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_hook, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_hook, NULL);
+  return 0;
+}
+
+/* Move bytes both ways; called every simulated millisecond from the simulation loop. */
+static void bridge_pump(void) {
+  if (tx_len > 0) {
+    const ssize_t n = write(pty_master, tx_buf, tx_len);
+    if (n > 0) {
+      memmove(tx_buf, tx_buf + n, tx_len - (size_t)n);
+      tx_len -= (size_t)n;
+    }
+  }
+  while (uart_xon) {
+    if (rx_pos >= rx_len) {
+      rx_len = read(pty_master, rx_buf, sizeof rx_buf);
+      rx_pos = 0;
+      if (rx_len <= 0) {
+        rx_len = 0;
+        break;
+      }
+    }
+    avr_raise_irq(uart_input, rx_buf[rx_pos++]);
+  }
+}
 static avr_cycle_count_t rise[2];
 static double last_width[2] = {-1.0, -1.0};
 static const int pins[2] = {9, 10};
@@ -49,7 +119,6 @@ static unsigned long long sim_us(void) {
 static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   const int ch = (int)(long)param;
-  if (getenv("TUMBLE_SIM_DEBUG")) fprintf(stderr, "irq ch=%d value=%u cycle=%llu\n", ch, value, (unsigned long long)avr->cycle);
   if (value) {
     rise[ch] = avr->cycle;
   } else if (rise[ch] != 0 && avr->cycle > rise[ch]) {
@@ -120,15 +189,17 @@ int main(int argc, char **argv) {
   avr_load_firmware(avr, &fw);
   avr->frequency = 16000000;
 
-  uart_pty_init(avr, &uart_pty);
-  uart_pty_connect(&uart_pty, '0');
+  if (bridge_open() != 0) {
+    fprintf(stderr, "tumble_sim: cannot open a pty: %s\n", strerror(errno));
+    return 1;
+  }
   for (int ch = 0; ch < 2; ++ch) {
     /* Timer1's compare outputs OC1A (PB1, D9) and OC1B (PB2, D10): simavr drives them
      * through these IRQs (the ioport pin IRQs do not see hardware PWM). */
     avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_TIMER_GETIRQ('1'), TIMER_IRQ_OUT_COMP + ch);
     avr_irq_register_notify(irq, pin_changed, (void *)(long)ch);
   }
-  printf("@pty %s\n", uart_pty.port[0].slavename);
+  printf("@pty %s\n", pty_name);
   fflush(stdout);
 
   fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
@@ -151,10 +222,9 @@ int main(int argc, char **argv) {
     const avr_cycle_count_t now = cycle_offset + avr->cycle;
     if (now < next_check) continue;
     next_check = now + 16000;  /* every simulated millisecond */
-    if ((now / 16000) % 5 == 0) {
-      printf("@time %llu\n", sim_us());
-      fflush(stdout);
-    }
+    bridge_pump();
+    printf("@time %llu\n", sim_us());
+    fflush(stdout);
     if (read_command(&start, &reset) == 0) break;
     if (reset) {
       reset = 0;
