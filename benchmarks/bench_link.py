@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hil_tests"))
-from emulator import EmulatedUno  # noqa: E402
+from tumblebot.pi_agent import protocol as P
+from tumblebot.pi_agent.agent import Agent, AgentConfig, open_serial
 
-from tumblebot.pi_agent import protocol as P  # noqa: E402
-from tumblebot.pi_agent.agent import Agent, AgentConfig, open_serial  # noqa: E402
+from emulator import EmulatedUno
 
 KEY = bytes(range(32))
 
