@@ -124,8 +124,12 @@ def test_that_forged_replayed_and_foreign_datagrams_never_act(chain) -> None:  #
     host.send(wire)  # replay of the (-1, -1) command
     time.sleep(0.25)
     assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=1)
-    drops = host.telemetry()["drops"]
+    telemetry = host.telemetry()
+    drops = telemetry["drops"]
     assert drops["unauthenticated"] == 1 and drops["replayed"] == 1
+    assert telemetry["link_loss"] == 0.0
+    assert telemetry["rtt_ms"]["median"] < 50
+    assert telemetry["firmware_status"]["flags"] & 1  # armed
 
 
 def test_that_too_frequent_commands_act_at_10_hz_with_the_latest_winning(chain) -> None:  # type: ignore[no-untyped-def]

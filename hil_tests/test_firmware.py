@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+import struct
 import time
 
 import pytest
@@ -67,6 +68,16 @@ def test_that_a_reset_mid_run_is_neutral_until_a_new_valid_command(uno: Emulated
     assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
     link.speeds(-1, -1)
     uno.wait_for(NEUTRAL - 500, NEUTRAL + 500, timeout=0.1, tolerance=1.0)
+
+
+def test_that_trims_persist_in_eeprom_across_a_reset(uno: EmulatedUno, link: Link) -> None:
+    link.send(P.MsgType.SET_TRIM, struct.pack("<BHb", 0, 1520, -1))  # right: neutral 1520 us, reversed
+    link.read(0.1)
+    uno.reset()
+    link.wait_ready()
+    uno.wait_for(1520.5, NEUTRAL, timeout=0.5, tolerance=1.0)  # the stored neutral, at boot
+    link.speeds(1, 0)
+    uno.wait_for(1020.5, NEUTRAL, timeout=0.2, tolerance=1.0)  # forward is now the short pulse
 
 
 class FirmwareModel:

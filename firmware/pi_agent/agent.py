@@ -42,6 +42,7 @@ log = logging.getLogger("tumblebot.agent")
 
 COMMAND_INTERVAL = 0.1  #: s, at most 10 commands per second
 KEEPALIVE_INTERVAL = 0.1  #: s, resend the current command to the Arduino
+STATUS_INTERVAL = 1.0  #: s, ask the Arduino for its STATUS (reported in telemetry)
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
 SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
 READY_TIMEOUT = 3.0  #: s to wait for READY after opening the port
@@ -252,6 +253,7 @@ class Agent:
         self.last_acted = -1e9
         self.last_valid = -1e9
         self.last_keepalive = -1e9
+        self.last_status_request = -1e9
         self.telemetry_counter = 0
         self.epoch = int(time.time())
 
@@ -328,6 +330,9 @@ class Agent:
             self.last_keepalive = now
             self.link.send_speeds(*self.command, now)
             self.link.ping(now)
+        if now - self.last_status_request >= STATUS_INTERVAL and self.link.ready:
+            self.last_status_request = now
+            self.link.send(P.MsgType.GET_STATUS, b"", now)
 
     def run(self, stop: Callable[[], bool] = lambda: False) -> None:
         log.info("listening on %s:%d for %s", *self.address, self.config.allowed_host)
