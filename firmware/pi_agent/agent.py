@@ -75,6 +75,10 @@ class AgentConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise AgentError(f"config file {path}: unknown keys {', '.join(unknown)}")
+        for name, value in data.items():
+            expected = type(getattr(cls(), name))
+            if type(value) is not expected:
+                raise AgentError(f"config file {path}: {name} must be a {expected.__name__}, not {value!r}")
         config = cls(**data)
         if not 0 < config.bind_port < 65536:
             raise AgentError(f"bind_port {config.bind_port} is not a UDP port")
@@ -139,7 +143,7 @@ class SerialLink:
             return
         try:
             data = self.port.read(self.port.in_waiting or 1)
-        except (OSError, Exception) as exc:  # pyserial raises SerialException (an OSError subclass)
+        except OSError as exc:  # pyserial's SerialException is an OSError
             self._lost(now, f"read failed: {exc}")
             return
         if data:
@@ -153,7 +157,7 @@ class SerialLink:
     def _open(self, now: float) -> None:
         try:
             self.port = self.factory(self.url, self.baud)
-        except (OSError, Exception) as exc:
+        except (OSError, ValueError) as exc:  # a missing device, or a malformed URL
             log.warning("cannot open %s: %s (retry in %.2f s)", self.url, exc, self.backoff)
             self.next_attempt = now + self.backoff
             self.backoff = min(self.backoff * 2, BACKOFF_MAX)
@@ -168,7 +172,7 @@ class SerialLink:
         try:
             if self.port is not None:
                 self.port.close()
-        except Exception:  # closing a vanished device may fail too
+        except OSError:  # closing a vanished device may fail too
             pass
         self.port = None
         self.epoch = None
@@ -208,7 +212,7 @@ class SerialLink:
         try:
             # A leading delimiter ends any garbage the Arduino may hold, so this frame decodes.
             self.port.write(b"\x00" + P.encode_frame(P.Frame(self.epoch, self.seq, mtype, payload)))
-        except (OSError, Exception) as exc:
+        except OSError as exc:  # includes pyserial's write timeout
             self._lost(now, f"write failed: {exc}")
             return False
         return True
