@@ -294,8 +294,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             omega = np.array([s[1] for s in p.getJointStates(self._robot, [0, 1], physicsClientId=c)])
             forces = np.abs(C.MOTOR_DAMPING * (targets - omega))
             forces = np.where(command == 0.0, forces + self.hold_torque, forces)
-        else:
-            forces = np.where(command == 0.0, C.STALL_TORQUE, C.STALL_TORQUE)
+        else:  # velocity control capped at the stall torque, holding included
+            forces = np.full(2, C.STALL_TORQUE)
         p.setJointMotorControlArray(self._robot, [0, 1], p.VELOCITY_CONTROL, targetVelocities=targets.tolist(),
                                     forces=forces.tolist(), physicsClientId=c)
 
