@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TextIO
 
-from tumblebot.sim.design import THESIS_ROBOTS
+from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.episode import run_gait_episode, write_animation
 from tumblebot.sim.power import power_breakdown
 from tumblebot.sim.randomization import Randomization
@@ -19,6 +19,31 @@ from tumblebot.sim.tasks import TASKS
 THESIS_E: dict[str, float] = {"0": 6.05, "1": 6.00, "3": 5.20, "inf": 3.76}
 DEMO_GAITS: dict[str, str] = {"nav-flat": "alternate", "nav-terrain": "alternate",
                               "distance-flat": "forward", "incline": "forward"}
+
+
+def _bundled_policies(out: TextIO, robot: Design, seed: int, episodes: int = 12) -> None:
+    """The bundled ONNX policies on the same robot, against the same scripted gaits."""
+    from tumblebot.sim.evaluate import Controller, evaluate
+    from tumblebot.sim.policy import bundled_policy
+
+    rows = []
+    for name in TASKS:
+        path = bundled_policy(name)
+        if not path.is_file():
+            continue
+        pol = evaluate(name, robot, Controller("onnx", str(path)), episodes, seed)
+        gait = evaluate(name, robot, Controller("gait", DEMO_GAITS[name]), episodes, seed)
+        rows.append((name, pol, gait))
+    if not rows:
+        out.write("No bundled policies yet (policies/TASK.onnx); train one with `tumblebot train`.\n\n")
+        return
+    out.write(f"Bundled policies, {episodes} randomised episodes each (mean final-state R, 95 % CI)\n")
+    for name, pol, gait in rows:
+        lo, hi = pol.ci95
+        out.write(f"{name:<14} policy {pol.mean_R:+.3f} [{lo:+.3f}, {hi:+.3f}]   "
+                  f"gait '{DEMO_GAITS[name]}' {gait.mean_R:+.3f}   median final distance "
+                  f"{float(pol.summary()['median_final_distance']):.2f} m\n")
+    out.write("\n")
 
 
 def run_demo(out: TextIO, video_dir: Path | None = None, seed: int = 3) -> None:
@@ -38,6 +63,7 @@ def run_demo(out: TextIO, video_dir: Path | None = None, seed: int = 3) -> None:
             write_animation(res.frames, target)
             out.write(f"{'':<14} wrote {target}\n")
     out.write("\n(Scripted gaits are open-loop baselines: the bar a trained policy has to clear.)\n\n")
+    _bundled_policies(out, robot, seed)
     out.write("Power model against thesis Table 3.1 (e in W/m)\n")
     out.write(f"{'ξ':<4} {'x':>6} {'y':>6} {'z':>6} {'l':>6} {'mass kg':>8} {'e ours':>7} {'thesis':>7} {'diff':>7}\n")
     for key, w in THESIS_ROBOTS.items():
