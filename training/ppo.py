@@ -17,8 +17,11 @@ dropped on resume so the curve has no duplicates.
 from __future__ import annotations
 
 import csv
+import multiprocessing
 import os
 import shutil
+import signal
+import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -44,6 +47,10 @@ CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
 def make_env(task: str, state_weight: float, progress_weight: float) -> TumblerEnv:
     """Environment factory, run inside each worker process."""
     torch.set_num_threads(1)
+    if multiprocessing.parent_process() is not None:
+        # Ctrl-C reaches the whole process group; only the trainer handles it (it saves a
+        # checkpoint and closes the workers). A worker dying first would hang the trainer.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight)
 
 
@@ -189,6 +196,8 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         callback.save()
     except KeyboardInterrupt:
         callback.save()
+        print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved. Continue with: "
+              f"tumblebot train --resume --run-dir {run_dir}", file=sys.stderr)
         raise
     finally:
         callback.close()

@@ -195,3 +195,26 @@ def test_that_bad_training_configs_are_rejected() -> None:
         TrainConfig(n_steps=0)
     with pytest.raises(TrainingError, match="unknown training config keys: lr"):
         TrainConfig.from_dict({"lr": 1})
+
+
+def test_that_ctrl_c_saves_a_checkpoint_and_exits_cleanly_regression_worker_hang(tmp_path: Path) -> None:
+    """Ctrl-C reaches the whole process group; workers used to die first and hang the trainer."""
+    run = tmp_path / "run"
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"n_steps": 64, "batch_size": 64, "n_epochs": 1, "net_arch": [8]}))
+    proc = subprocess.Popen([sys.executable, "-m", "tumblebot.cli", "train", "--task", "distance-flat", "--steps",
+                             "100000", "--envs", "2", "--config", str(config), "--run-dir", str(run)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (run / "episodes.csv").exists() or len((run / "episodes.csv").read_text().splitlines()) < 3:
+            assert time.monotonic() < deadline and proc.poll() is None, "training did not start"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130
+    assert "checkpoint saved" in err
+    assert (run / "latest.zip").is_file()
