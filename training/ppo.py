@@ -140,6 +140,11 @@ def _trim_csv(path: Path, max_steps: int) -> None:
     os.replace(tmp, path)
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM stops training like Ctrl-C: checkpoint, then exit."""
+    raise KeyboardInterrupt
+
+
 def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
     policy_kwargs: dict[str, Any] = {
         "features_extractor_class": TumblerFeaturesExtractor,
@@ -188,6 +193,7 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         model = new_model(config, env, run_dir)
         start = 0
     callback = RunCallback(run_dir, config, start)
+    previous_term = signal.signal(signal.SIGTERM, _terminate)  # `kill`, systemd, batch schedulers
     try:
         remaining = config.total_steps - start
         if remaining > 0:
@@ -200,6 +206,7 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
               f"tumblebot train --resume --run-dir {run_dir}", file=sys.stderr)
         raise
     finally:
+        signal.signal(signal.SIGTERM, previous_term)
         callback.close()
         env.close()
     from tumblebot.training.curves import plot_learning_curve
