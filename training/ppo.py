@@ -65,7 +65,7 @@ def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
 class RunCallback(BaseCallback):
     """Progress bar, episode CSV, and periodic atomic checkpoints."""
 
-    def __init__(self, run_dir: Path, config: TrainConfig, start_steps: int) -> None:
+    def __init__(self, run_dir: Path, config: TrainConfig, start_steps: int, wall_offset: float = 0.0) -> None:
         super().__init__()
         self.run_dir = run_dir
         self.config = config
@@ -78,6 +78,7 @@ class RunCallback(BaseCallback):
         if self.csv_file.tell() == 0:
             self.writer.writerow(CSV_FIELDS)
         self.start_wall = time.monotonic()
+        self.wall_offset = wall_offset  # training seconds before this (resumed) segment
         self.start_steps = start_steps
 
     def _on_step(self) -> bool:
@@ -87,7 +88,7 @@ class RunCallback(BaseCallback):
                 self.recent.append(float(info["final_R"]))
                 shaped = float(info["episode"]["r"]) if "episode" in info else float("nan")
                 self.writer.writerow((steps, f"{info['final_R']:.5f}", f"{shaped:.5f}",
-                                      f"{time.monotonic() - self.start_wall:.1f}"))
+                                      f"{self.wall_offset + time.monotonic() - self.start_wall:.1f}"))
         self.bar.update(steps - self.bar.n)
         if self.recent:
             rate = (steps - self.start_steps) / max(time.monotonic() - self.start_wall, 1e-9)
@@ -125,19 +126,21 @@ def save_checkpoint(model: BaseAlgorithm, run_dir: Path) -> Path:
     return target
 
 
-def _trim_csv(path: Path, max_steps: int) -> None:
-    """Drop episodes recorded after the checkpoint we resume from."""
+def _trim_csv(path: Path, max_steps: int) -> float:
+    """Drop episodes recorded after the checkpoint we resume from; return the training
+    wall time (s) recorded up to it, so the resumed run's clock continues from there."""
     if not path.exists():
-        return
+        return 0.0
     with path.open(newline="") as fh:
         rows = list(csv.reader(fh))
     if not rows:
-        return
+        return 0.0
     kept = [rows[0]] + [r for r in rows[1:] if r and int(r[0]) <= max_steps]
     tmp = path.with_suffix(".tmp")
     with tmp.open("w", newline="") as fh:
         csv.writer(fh).writerows(kept)
     os.replace(tmp, path)
+    return float(kept[-1][3]) if len(kept) > 1 else 0.0
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -184,15 +187,15 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
     if resume:
         model = PPO.load(run_dir / "latest.zip", device="cpu")
         start = model.num_timesteps
-        _trim_csv(run_dir / "episodes.csv", start)
+        wall_offset = _trim_csv(run_dir / "episodes.csv", start)
         env = build_vec_env(config, seed=config.seed + start)
         model.set_env(env)
         model.tensorboard_log = str(run_dir / "tb")
     else:
         env = build_vec_env(config, seed=config.seed)
         model = new_model(config, env, run_dir)
-        start = 0
-    callback = RunCallback(run_dir, config, start)
+        start, wall_offset = 0, 0.0
+    callback = RunCallback(run_dir, config, start, wall_offset)
     previous_term = signal.signal(signal.SIGTERM, _terminate)  # `kill`, systemd, batch schedulers
     try:
         remaining = config.total_steps - start
