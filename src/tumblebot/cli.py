@@ -144,6 +144,8 @@ def _export(args: argparse.Namespace) -> int:
             rows = list(csv.DictReader(fh))
         if rows:
             extra["training_wall_seconds"] = float(rows[-1]["wall_seconds"])
+    if args.note:
+        extra["notes"] = args.note
     write_card(args.output, task.name, int(model.num_timesteps), config, extra)
     print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
     if args.eval_episodes > 0:
@@ -297,6 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-episodes", type=int, default=240, help="episodes per design for the card (0: skip)")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed")
     p.add_argument("--workers", type=_positive_int, default=1, help="evaluation worker processes")
+    p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits")
     p.set_defaults(func=_export)
 
     p = sub.add_parser("evaluate", help="evaluate a policy (or a gait) on a design: mean R with a 95% CI",
