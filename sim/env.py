@@ -211,12 +211,12 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         for _ in range(self.settle_substeps):
             self._substep()
         self._step = 0
-        position, _, _ = self._state()
+        position, _, orientation = self._state()
         self._potential = self.task.potential(position)
         self._capture_frame(force=True)
         info = {"design": self.design.as_tuple(), "step": 0, "spawn_position": (xy[0], xy[1], z),
                 "spawn_yaw": yaw, "friction": friction, "leg_angles": leg_angles}
-        return self._observation(), info
+        return self._observation(position, orientation), info
 
     def _choose_design(self, requested: Any, rng: np.random.Generator) -> Design:
         drawn = Design.sample(rng)  # always drawn, so the other streams never shift
@@ -261,7 +261,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             self._substep()
         self._step += 1
 
-        position, velocity, _ = self._state()
+        position, velocity, orientation = self._state()
         r_state = self.task.state_reward(position, velocity)
         potential = self.task.potential(position)
         progress = potential - self._potential
@@ -279,7 +279,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         if truncated:
             info["final_R"] = r_state
             info["final_position"] = position
-        return self._observation(), float(reward), False, truncated, info
+        return self._observation(position, orientation), float(reward), False, truncated, info
 
     def _substep(self) -> None:
         self._p.stepSimulation(physicsClientId=self._client)
@@ -311,9 +311,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         vel, _ = p.getBaseVelocity(self._robot, physicsClientId=c)
         return (pos[0], pos[1], pos[2]), (vel[0], vel[1], vel[2]), tuple(orn)
 
-    def _observation(self) -> np.ndarray:
-        pos, _, orn = self._state()
-        obs = np.array([*pos, *orn, *self._command], dtype=np.float32)
+    def _observation(self, position: tuple[float, ...], orientation: tuple[float, ...]) -> np.ndarray:
+        obs = np.array([*position, *orientation, *self._command], dtype=np.float32)
         return np.clip(obs, self._obs_low, self._obs_high)
 
     # ----------------------------------------------------------------------- rendering
