@@ -302,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits")
     p.set_defaults(func=_export)
 
-    p = sub.add_parser("evaluate", help="evaluate a policy (or a gait) on a design: mean R with a 95% CI",
+    p = sub.add_parser("evaluate", help="evaluate a policy (or a gait) on a design: mean R with a 95 %% CI",
                        description="Run N episodes of a task on one design with the bundled ONNX policy "
                                    "(or --policy / --gait). Episode i with seed S is the same whatever "
                                    "--workers is, and the same draws are used for every design.")

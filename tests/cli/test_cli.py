@@ -96,3 +96,10 @@ def test_that_demo_runs_every_task_and_prints_the_power_table(capsys: pytest.Cap
     for task in ("nav-flat", "nav-terrain", "distance-flat", "incline"):
         assert task in out
     assert "Table 3.1" in out
+
+
+@pytest.mark.parametrize("command", [[], ["power"], ["urdf"], ["sim"], ["train"], ["export"], ["evaluate"], ["demo"]])
+def test_that_every_help_page_renders_regression_percent_in_help(command: list[str]) -> None:
+    result = run_cli(*command, "--help")
+    assert result.returncode == 0, result.stderr
+    assert "usage: tumblebot" in result.stdout
