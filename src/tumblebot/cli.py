@@ -319,9 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_evaluate)
 
-    p = sub.add_parser("demo", help="one scripted episode of each task and the power table",
+    p = sub.add_parser("demo", help="scripted episodes, the bundled policies and the power table",
                        description="What exists so far, in one minute: a scripted episode of each of "
-                                   "the four tasks and the power model against thesis Table 3.1.")
+                                   "the four tasks, the bundled policies on the same robot, and the "
+                                   "power model against thesis Table 3.1.")
     p.add_argument("--video-dir", type=Path, default=None, help="also write one GIF per task here")
     p.set_defaults(func=_demo)
     return parser
