@@ -213,6 +213,89 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _optimize(args: argparse.Namespace) -> int:
+    import dataclasses
+    import os
+
+    from tumblebot.sim.optimize import (
+        DEFAULT_STORAGE,
+        Objective,
+        OptimizeError,
+        Progress,
+        Recipe,
+        StudyConfig,
+        bundled_policies,
+        format_best,
+        format_xi,
+        load_config,
+        open_storage,
+        open_study,
+        optimize,
+        parse_tasks,
+        parse_xi,
+    )
+    from tumblebot.sim.policy import sha256_of
+
+    objective = Objective(parse_tasks(args.tasks), parse_xi(args.xi), args.variant)
+    recipe = Recipe.make(args.recipe, args.trials, args.batch, args.startup)
+    if args.workers < 1:
+        raise OptimizeError(f"--workers {args.workers} must be at least 1")
+    policies = bundled_policies(objective.tasks)
+    config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()})
+    name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
+    storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
+    study = open_study(open_storage(storage_url), name, config)
+    stored = load_config(study)
+    if args.startup is None and stored is not None and stored.startup != recipe.startup:
+        recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
+    print(f"study {name!r} in {storage_url}: {objective.describe()}, recipe {recipe.name} "
+          f"({recipe.trials} trials, {recipe.startup} random then GP-logEI, batch {recipe.batch}"
+          + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
+          file=sys.stderr)
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=recipe.trials, unit="trial", desc="optimize", disable=args.quiet, mininterval=0.5)
+
+    def show(p: Progress) -> None:
+        bar.n = min(p.done, recipe.trials)
+        if p.best is not None:
+            x, y, z, l = p.best.design  # noqa: E741
+            bar.set_postfix_str(f"best {p.best.value:.4g} at x={x:.3f} y={y:.3f} z={z:.3f} l={l:.3f}")
+        bar.refresh()
+
+    from tumblebot.sim.runner import EpisodeRunner
+
+    runner = EpisodeRunner(policies, workers=args.workers) if objective.tasks else None
+    try:
+        result = optimize(study, objective, recipe, runner, args.seed, on_progress=show)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\nstopped; finished trials are kept in {storage_url}. Run the same command to resume.",
+              file=sys.stderr)
+        return 130
+    finally:
+        if runner is not None:
+            runner.close()
+    bar.close()
+    print(f"{result.done} trials in study {name!r} ({result.episodes} episodes this run)")
+    print(format_best(result.best, objective))
+    if args.json is not None:
+        from tumblebot.sim.optimize import study_summary, to_json
+
+        args.json.write_text(to_json(study_summary(study)) + "\n")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from tumblebot.sim.report import write_report
+
+    path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
+                        seed=args.seed, slice_points=args.slice_points, progress=not args.quiet)
+    print(f"wrote {path}")
+    return 0
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -318,6 +401,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (mean_R, ci95, e, episodes, …)")
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser(
+        "optimize", help="Bayesian optimisation of the design (x, y, z, l) for weighted tasks",
+        description="Maximise the thesis objective, the batch mean of sum_i lambda_i R_i/(e(w)+1)^xi, over the "
+                    "design bounds with each task's bundled ONNX policy. Optuna: random start-up designs, then its "
+                    "GP sampler with log expected improvement. Studies live in a database (SQLite file by "
+                    "default); running the same command again resumes a study, and several processes pointed at "
+                    "one study cooperate on it. Ctrl-C stops cleanly.")
+    p.add_argument("--tasks", required=True, help="weighted tasks, e.g. nav-flat=1,incline=0.5 (a bare name weighs 1)")
+    p.add_argument("--xi", default="0", help="energy exponent xi >= 0, or inf to minimise e(w) alone (default 0)")
+    p.add_argument("--trials", type=int, help="designs to evaluate in the study (all workers together)")
+    p.add_argument("--batch", type=int, help="episodes per task for a design's full evaluation (thesis: 240)")
+    p.add_argument("--startup", type=int, help="random designs before the GP (default: half the trials, at most 20)")
+    p.add_argument("--recipe", choices=("standard", "thesis", "efficient"), default="standard",
+                   help="standard: every trial gets the full batch; thesis: 1000 random + 1000 EI, batch 240 "
+                        "(fixes --trials/--batch/--startup); efficient: screen on batch/15 episodes and promote the "
+                        "best designs to the full batch (default standard)")
+    p.add_argument("--storage", help="Optuna storage URL, e.g. sqlite:///study.db or postgresql://user@host/db "
+                                     "(default $TUMBLEBOT_STORAGE, else sqlite:///tumblebot-optuna.db)")
+    p.add_argument("--study", help="study name (default from the tasks and xi, e.g. nav-flat=1-xi3)")
+    p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the episodes and start-up designs (default 0)")
+    p.add_argument("--variant", choices=("thesis", "monotone"), default="thesis",
+                   help="wrapper for R < 0: the thesis's R/(e+1)^xi or the monotone R*(e+1)^xi (default thesis)")
+    p.add_argument("--json", type=Path, help="also write the study summary as JSON to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_optimize)
+
+    p = sub.add_parser(
+        "report", help="write a report (Markdown + plots) of optimisation studies",
+        description="Write DIR/report.md with plots: the optimum of each study re-evaluated on fresh episodes, the "
+                    "Table 3.1 and 3.2 equivalents next to the thesis's values, the universal-optimum check, "
+                    "objective and best design vs trial, one-parameter slices through the optimum, and e(w).")
+    p.add_argument("--storage", required=True, help="Optuna storage URL the studies live in")
+    p.add_argument("--study", action="append", required=True,
+                   help="study name; repeat for several (e.g. one per xi, one per task)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="report folder (created)")
+    p.add_argument("--episodes", type=int, help="episodes per task for every re-evaluation (default: the "
+                                                "studies' full batch)")
+    p.add_argument("--slice-points", type=int, default=7, help="points per one-parameter slice (default 7)")
+    p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the re-evaluation episodes, which should differ "
+                                                       "from the studies' (default 1)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_report)
 
     p = sub.add_parser("demo", help="scripted episodes, the bundled policies and the power table",
                        description="What exists so far, in one minute: a scripted episode of each of "
