@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # tumblebot's one entry point for people and CI.
 #
-#   ./dev.sh demo   set up .venv (simulation extras, no torch) and run the main job
+#   ./dev.sh demo   set up .venv (simulation + optimisation extras) and run the main job:
+#                   a short design optimisation with the bundled policies, and its report
 #   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types and all tests
 #                   (firmware build with avr-gcc, C++ host tests with ctest, then pytest)
 #   ./dev.sh setup  set up .venv with everything, run nothing
@@ -56,16 +57,22 @@ FIRMWARE_PACKAGES="gcc-avr avr-libc binutils-avr arduino-core-avr cmake g++ doct
 cmd=${1:-help}
 case "$cmd" in
     demo)
-        ensure_venv "sim"
+        ensure_venv "opt"
         shift
-        exec "$VENV/bin/tumblebot" demo "$@"
+        # A few minutes on 2 cores. Re-running resumes the study (already finished: it
+        # just reprints the optimum and rewrites the report).
+        mkdir -p runs
+        "$VENV/bin/tumblebot" optimize --tasks nav-flat=1 --xi 3 --recipe efficient --trials 40 --batch 48 \
+            --storage sqlite:///runs/demo.db --study demo --seed 0 --workers 2 "$@"
+        exec "$VENV/bin/tumblebot" report --storage sqlite:///runs/demo.db --study demo -o runs/demo-report \
+            --episodes 48 --slice-points 5 --workers 2
         ;;
     setup)
-        ensure_venv "train,dev"
+        ensure_venv "train,opt,dev,agent"
         ;;
     test)
-        apt_install $FIRMWARE_PACKAGES
-        ensure_venv "train,dev,agent"
+        apt_install $FIRMWARE_PACKAGES postgresql
+        ensure_venv "train,opt,dev,agent"
         shift
         echo "dev.sh: firmware build (Debian avr-gcc)"
         make -s -C firmware/arduino

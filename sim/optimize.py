@@ -39,6 +39,7 @@ import contextlib
 import json
 import math
 import os
+import socket
 import time
 import warnings
 from collections.abc import Callable
@@ -266,13 +267,21 @@ def open_storage(url: str) -> Any:
     engine_kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
         engine_kwargs = {"connect_args": {"timeout": 60}}  # several processes share one file
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=10, grace_period=60)
-    except Exception as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise OptimizeError(f"--storage {url!r} cannot be opened: {first}") from None
+    for attempt in range(5):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=10, grace_period=60)
+        except Exception as exc:  # SQLAlchemy raises many types; all mean "cannot open"
+            text = str(exc)
+            # Workers started together on an empty database race to create the schema; the
+            # loser sees a duplicate-key error and finds the tables on its next try.
+            if attempt < 4 and ("duplicate key" in text or "already exists" in text):
+                time.sleep(0.5 + attempt)
+                continue
+            first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
+            raise OptimizeError(f"--storage {url!r} cannot be opened: {first}") from None
+    raise AssertionError("unreachable")
 
 
 def load_config(study: optuna.Study) -> StudyConfig | None:
@@ -556,6 +565,7 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
     from optuna.trial import TrialState
 
     design = Design(*(trial.params[n] for n in PARAMETERS))
+    trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
     trial.set_constraint(CONSTRAINT, design.pivot_radius - design.l)
     if not design.can_tumble:
         trial.set_user_attr("infeasible", f"l={design.l:.3f} m < r={design.pivot_radius:.3f} m: the legs "

@@ -1,0 +1,284 @@
+"""Design optimisation: the optimize and report commands as a user runs them, and their library."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import optuna
+import pytest
+
+from tumblebot.sim.design import Design
+from tumblebot.sim.optimize import (
+    Objective,
+    OptimizeError,
+    Recipe,
+    TrialNumberSampler,
+    best_candidate,
+    counted_trials,
+    episode_count,
+    parse_tasks,
+    parse_xi,
+    promotions,
+)
+
+
+def tb(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
+
+
+def load(db: Path, name: str) -> optuna.Study:
+    return optuna.load_study(study_name=name, storage=f"sqlite:///{db}")
+
+
+# ------------------------------------------------------------------ parsing
+def test_that_task_weights_parse_with_a_bare_name_weighing_one() -> None:
+    assert parse_tasks("nav-flat=1,incline=0.5") == {"nav-flat": 1.0, "incline": 0.5}
+    assert parse_tasks("nav-flat") == {"nav-flat": 1.0}
+    assert parse_xi("3") == 3.0 and math.isinf(parse_xi("inf"))
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("walk=1", "unknown task"), ("nav-flat=abc", "not a number"), ("nav-flat=-1", ">= 0"),
+    ("nav-flat=nan", ">= 0"), ("nav-flat=0", "positive"), ("nav-flat=1,nav-flat=2", "twice"), ("", "empty"),
+])
+def test_that_bad_task_weights_get_one_clear_error(text: str, message: str) -> None:
+    with pytest.raises(OptimizeError, match=message):
+        parse_tasks(text)
+
+
+@pytest.mark.parametrize("text", ["-1", "nan", "three"])
+def test_that_bad_xi_is_refused(text: str) -> None:
+    with pytest.raises(OptimizeError):
+        parse_xi(text)
+
+
+def test_that_the_thesis_recipe_is_the_thesis_schedule_and_cannot_be_bent() -> None:
+    r = Recipe.make("thesis", None, None)
+    assert (r.trials, r.startup, r.batch, r.screen_batch) == (2000, 1000, 240, 240)
+    with pytest.raises(OptimizeError, match="fixes"):
+        Recipe.make("thesis", 100, None)
+    eff = Recipe.make("efficient", 300, 240)
+    assert eff.screen_batch == 16 and eff.batch == 240
+
+
+def test_that_the_objective_is_the_thesis_wrapper_summed_over_weighted_tasks() -> None:
+    import numpy as np
+
+    obj = Objective({"nav-flat": 1.0, "incline": 0.5}, 1.0)
+    per = obj.per_episode({"nav-flat": np.array([0.5, 1.0]), "incline": np.array([0.2, 0.4])}, e=4.0)
+    assert per == pytest.approx([0.5 / 5 + 0.5 * 0.2 / 5, 1.0 / 5 + 0.5 * 0.4 / 5])
+    assert Objective({"nav-flat": 1.0}, math.inf).tasks == []
+
+
+def test_that_start_up_designs_depend_on_the_trial_number_not_the_process() -> None:
+    a, b = TrialNumberSampler(7), TrialNumberSampler(7)
+    assert a.value(3, "x", 0.189, 0.3) == b.value(3, "x", 0.189, 0.3)
+    assert a.value(3, "x", 0.189, 0.3) != a.value(4, "x", 0.189, 0.3)
+
+
+# ------------------------------------------------------------------ the done-when commands
+@pytest.mark.slow
+def test_that_optimize_completes_resumes_and_reports(tmp_path: Path) -> None:
+    db = tmp_path / "X.db"
+    cmd = ["optimize", "--tasks", "nav-flat=1", "--xi", "3", "--trials", "12", "--batch", "8",
+           "--storage", f"sqlite:///{db}", "--study", "s", "--seed", "0"]
+    first = tb(*cmd)
+    assert first.returncode == 0, first.stderr
+    assert "best robot" in first.stdout
+    study = load(db, "s")
+    assert counted_trials(study) == 12
+    numbers = [t.number for t in study.trials]
+    spent = episode_count(study)
+
+    again = tb(*cmd)  # the same command resumes: nothing to add, nothing redone
+    assert again.returncode == 0, again.stderr
+    assert "(0 episodes this run)" in again.stdout
+    study = load(db, "s")
+    assert [t.number for t in study.trials] == numbers and episode_count(study) == spent
+
+    more = tb(*[c if c != "12" else "14" for c in cmd])  # asking for more trials continues the study
+    assert more.returncode == 0, more.stderr
+    study = load(db, "s")
+    assert counted_trials(study) == 14 and [t.number for t in study.trials][:len(numbers)] == numbers
+
+    out = tmp_path / "DIR"
+    rep = tb("report", "--storage", f"sqlite:///{db}", "--study", "s", "-o", str(out))
+    assert rep.returncode == 0, rep.stderr
+    text = (out / "report.md").read_text()
+    for heading in ("Table 3.1 equivalent", "Table 3.2 equivalent", "Universal optimum", "Compared with the thesis"):
+        assert heading in text
+    for png in ("objective_vs_trial.png", "best_design_vs_trial.png", "slices.png", "energy.png"):
+        assert (out / png).stat().st_size > 5000
+    data = json.loads((out / "report.json").read_text())
+    best = best_candidate(load(db, "s"))
+    assert best is not None
+    assert data["table31"][0]["design"] == pytest.approx(dict(zip("xyzl", best.design.as_tuple(), strict=True)))
+    assert [r["change"] for r in data["table32"]] == ["none", "+x", "-x", "+y", "-y", "+z", "-z", "+l", "-l"]
+
+
+@pytest.mark.slow
+def test_that_infeasible_designs_are_recorded_cost_nothing_and_are_never_the_optimum(tmp_path: Path) -> None:
+    db = tmp_path / "i.db"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "30", "--batch", "2", "--startup", "12",
+             "--storage", f"sqlite:///{db}", "--study", "i", "--quiet")
+    assert run.returncode == 0, run.stderr
+    study = load(db, "i")
+    infeasible = [t for t in study.trials if "infeasible" in t.user_attrs]
+    assert infeasible, "seed 0 draws some designs with l < r among its start-up designs"
+    for t in infeasible:
+        w = Design(*(t.params[n] for n in "xyzl"))
+        assert not w.can_tumble and "R" not in t.user_attrs
+    # The GP learns the constraint: it does not keep proposing the infeasible corner.
+    gp_phase = [t for t in study.trials if t.number >= 12]
+    assert sum("infeasible" in t.user_attrs for t in gp_phase) <= len(gp_phase) // 2
+    best = best_candidate(study)
+    assert best is not None and best.design.can_tumble
+
+
+def test_that_xi_infinity_minimises_e_without_any_episode(tmp_path: Path) -> None:
+    db = tmp_path / "inf.db"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "25", "--batch", "240",
+             "--storage", f"sqlite:///{db}", "--study", "inf", "--quiet")
+    assert run.returncode == 0, run.stderr
+    study = load(db, "inf")
+    assert episode_count(study) == 0
+    best = best_candidate(study)
+    assert best is not None and best.value == pytest.approx(-best.e)
+    assert best.e < 4.3  # the smallest robots are cheapest; thesis ξ = ∞ robot: 3.76 W/m
+
+
+@pytest.mark.slow
+def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_path: Path) -> None:
+    db = tmp_path / "e.db"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--recipe", "efficient", "--trials", "24",
+             "--batch", "60", "--storage", f"sqlite:///{db}", "--study", "e", "--quiet", "--workers", "2")
+    assert run.returncode == 0, run.stderr
+    study = load(db, "e")
+    screened = [t for t in study.trials if "R" in t.user_attrs]
+    assert all(len(t.user_attrs["R"]["nav-flat"]) == 4 for t in screened)
+    promoted = promotions(study)
+    assert promoted and all(len(p["R"]["nav-flat"]) == 60 for p in promoted.values())
+    for number, p in promoted.items():  # promotion extends the same episodes (common random numbers)
+        assert p["R"]["nav-flat"][:4] == study.trials[number].user_attrs["R"]["nav-flat"]
+    best = best_candidate(study)
+    assert best is not None and best.batch == 60 and best.trial in promoted
+    top = max((t for t in screened), key=lambda t: t.value)
+    assert top.number in promoted  # the best screened design got its full batch before the end
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(("args", "message"), [
+    (["--tasks", "walk=1"], "unknown task"),
+    (["--tasks", "nav-flat=x"], "not a number"),
+    (["--tasks", "nav-flat=-2"], ">= 0"),
+    (["--tasks", "nav-flat=nan"], ">= 0"),
+    (["--batch", "0"], "--batch 0"),
+    (["--trials", "0"], "--trials 0"),
+    (["--xi", "-1"], "--xi"),
+    (["--tasks", "incline=1"], "no bundled policy"),
+    (["--storage", "sqlite:////no/such/folder/x.db"], "does not exist"),
+    (["--storage", "nosuchdb://x"], "cannot be opened"),
+    (["--storage", "just-a-file.db"], "not a database URL"),
+])
+def test_that_bad_optimize_input_gets_one_clear_error(tmp_path: Path, args: list[str], message: str) -> None:
+    base = {"--tasks": "nav-flat=1", "--xi": "3", "--trials": "3", "--batch": "2",
+            "--storage": f"sqlite:///{tmp_path / 'b.db'}", "--study": "b"}
+    for flag, value in zip(args[::2], args[1::2], strict=True):
+        base[flag] = value
+    run = tb("optimize", *[x for kv in base.items() for x in kv], "--quiet", timeout=120)
+    assert run.returncode == 2
+    assert message in run.stderr and "Traceback" not in run.stderr
+    assert len([ln for ln in run.stderr.splitlines() if ln.startswith("tumblebot: error")]) == 1
+
+
+def test_that_a_study_made_for_another_objective_is_refused_and_left_untouched(tmp_path: Path) -> None:
+    db = tmp_path / "s.db"
+    base = ["--storage", f"sqlite:///{db}", "--study", "s", "--trials", "3", "--batch", "240", "--quiet"]
+    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", *base).returncode == 0
+    before = load(db, "s")
+    snapshot = ([(t.number, t.state, t.params, t.value) for t in before.trials], before.user_attrs)
+    for other in (["--tasks", "nav-flat", "--xi", "3"], ["--tasks", "nav-flat=2", "--xi", "inf"],
+                  ["--tasks", "nav-flat,distance-flat", "--xi", "inf"]):
+        run = tb("optimize", *other, *base)
+        assert run.returncode == 2 and "different objective" in run.stderr, run.stderr
+    after = load(db, "s")
+    assert ([(t.number, t.state, t.params, t.value) for t in after.trials], after.user_attrs) == snapshot
+
+
+def test_that_report_refuses_a_missing_study(tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--batch", "2",
+              "--storage", f"sqlite:///{db}", "--study", "here", "--quiet").returncode == 0
+    run = tb("report", "--storage", f"sqlite:///{db}", "--study", "gone", "-o", str(tmp_path / "out"))
+    assert run.returncode == 2 and "does not exist" in run.stderr and "here" in run.stderr
+
+
+# ------------------------------------------------------------------ Ctrl-C
+@pytest.mark.slow
+def test_that_ctrl_c_stops_cleanly_and_the_same_command_resumes(tmp_path: Path) -> None:
+    db = tmp_path / "c.db"
+    cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "8",
+           "--batch", "24", "--storage", f"sqlite:///{db}", "--study", "c", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # wait until a trial is under way
+        time.sleep(0.5)
+        if db.exists():
+            try:
+                if any(t.state == optuna.trial.TrialState.COMPLETE for t in load(db, "c").trials):
+                    break
+            except Exception:  # the study may not exist yet
+                continue
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Run the same command to resume" in err and "Traceback" not in err
+    study = load(db, "c")
+    done = counted_trials(study)
+    assert 1 <= done < 8
+    assert all(t.state != optuna.trial.TrialState.RUNNING for t in study.trials)
+    resumed = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False, stdin=subprocess.DEVNULL)
+    assert resumed.returncode == 0, resumed.stderr
+    assert counted_trials(load(db, "c")) == 8
+
+
+# ------------------------------------------------------------------ scale-out
+def _two_workers(storage: str, study: str, trials: int) -> list[subprocess.CompletedProcess[str]]:
+    cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat", "--xi", "3", "--trials",
+           str(trials), "--batch", "2", "--startup", "4", "--storage", storage, "--study", study, "--quiet"]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              stdin=subprocess.DEVNULL, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+             for _ in range(2)]
+    return [subprocess.CompletedProcess(p.args, p.wait(timeout=600), *p.communicate()) for p in procs]
+
+
+def _check_cooperation(study: optuna.Study, trials: int) -> None:
+    counted = counted_trials(study)
+    assert trials <= counted <= trials + 1  # a worker may start one trial just as the other finishes the last
+    workers = {t.user_attrs.get("worker") for t in study.trials}
+    assert len(workers) == 2, "both processes evaluated designs"
+    params = [tuple(t.params.values()) for t in study.trials if t.number < 4]
+    assert len(set(params)) == len(params), "start-up designs are not duplicated between workers"
+
+
+@pytest.mark.slow
+def test_that_two_worker_processes_cooperate_on_one_sqlite_study(tmp_path: Path) -> None:
+    storage = f"sqlite:///{tmp_path / 'shared.db'}"
+    for run in _two_workers(storage, "shared", 16):
+        assert run.returncode == 0, run.stderr
+    _check_cooperation(optuna.load_study(study_name="shared", storage=storage), 16)
+
+
+@pytest.mark.slow
+def test_that_two_worker_processes_cooperate_on_one_postgresql_study(postgres_url: str) -> None:
+    for run in _two_workers(postgres_url, "shared-pg", 16):
+        assert run.returncode == 0, run.stderr
+    _check_cooperation(optuna.load_study(study_name="shared-pg", storage=postgres_url), 16)
