@@ -68,7 +68,9 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             ``incline``) or Gymnasium id.
         design: a fixed design; ``None`` draws one per episode when
             ``randomization.design`` is on, else uses :data:`DEFAULT_DESIGN`.
-            ``reset(options={"design": w})`` overrides it for one episode.
+            ``reset(options={"design": w})`` overrides it for one episode;
+            ``options={"start_xy": (x, y), "start_yaw": yaw}`` fixes where the robot starts
+            (the random draws are still made, so other streams do not shift).
         randomization: what varies between episodes (:class:`Randomization`).
         motor_model: ``"dc"`` or ``"velocity"`` (see module docs).
         episode_steps: steps per episode (thesis: 20).
@@ -177,6 +179,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         yaw_jitter = float(world_rng.uniform(-0.1, 0.1))
         dist_draw = float(world_rng.uniform(*self.start_distance))
         dir_draw = float(world_rng.uniform(0.0, 2 * math.pi))
+        start_xy, start_yaw = options.get("start_xy"), options.get("start_yaw")
         terrain_rng = np.random.default_rng(world_rng.integers(2**63))
 
         p, c = self._p, self._client
@@ -197,6 +200,10 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             xy = (0.0, 0.0)
             yaw = math.pi / 2 + (yaw_jitter if rnd.start_pose else 0.0)
+        if start_xy is not None:  # a given start (field-trial start points, the digital twin)
+            xy = (float(start_xy[0]), float(start_xy[1]))
+        if start_yaw is not None:
+            yaw = float(start_yaw)
         orientation = p.getQuaternionFromEuler([roll, 0.0, yaw])
         depth = self._lowest_point(orientation, leg_angles)
         reach = max(self.design.x, self.design.y, self.design.z, self.design.l)
@@ -280,6 +287,32 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             info["final_R"] = r_state
             info["final_position"] = position
         return self._observation(position, orientation), float(reward), False, truncated, info
+
+    # ------------------------------------------- continuous driving (the digital twin)
+    def set_leg_commands(self, right: float, left: float) -> None:
+        """Leg commands in [-1, 1] (fractions of full speed), held until changed. The
+        digital twin maps the firmware's servo pulses to these; :meth:`step` is the
+        discrete, 1 s-per-action interface the policies were trained on."""
+        if not (-1.0 <= right <= 1.0 and -1.0 <= left <= 1.0):
+            raise SimError(f"leg commands ({right}, {left}) must be within [-1, 1]")
+        self._command = np.array([float(right), float(left)])
+
+    def advance(self, substeps: int) -> None:
+        """Simulate ``substeps`` physics substeps under the current leg commands; the
+        motors' speed noise is redrawn every simulated second, as in :meth:`step`."""
+        if self._scene is None:
+            raise SimError("call reset() before advance()")
+        for _ in range(substeps):
+            if self._substep_count % self.substeps == 0:
+                noise = self._motor_rng.standard_normal(2)
+                self._speed = np.maximum(C.LEG_SPEED + self.randomization.motor_speed_sigma * noise, 0.0)
+            self._set_motors(self._command)
+            self._substep()
+
+    def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, ...]]:
+        """World-frame base position (m) and orientation quaternion ``(x, y, z, w)``."""
+        position, _, orientation = self._state()
+        return position, orientation
 
     def _substep(self) -> None:
         self._p.stepSimulation(physicsClientId=self._client)

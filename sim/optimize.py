@@ -510,8 +510,10 @@ def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
 
 
 def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None, seed: int,
-             on_progress: Callable[[Progress], None] | None = None) -> Progress:
-    """Run trials until the study holds ``recipe.trials`` of them (counting other workers').
+             on_progress: Callable[[Progress], None] | None = None, episode_budget: int | None = None) -> Progress:
+    """Run trials until the study holds ``recipe.trials`` of them (counting other workers'),
+    or until it has spent ``episode_budget`` episodes (the efficient recipe keeps enough of
+    the budget back for its final promotions).
 
     Ctrl-C (``KeyboardInterrupt``) marks the trial in progress as interrupted (it will be
     redone) and propagates; the study stays consistent and the same call resumes it.
@@ -525,6 +527,12 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     episodes = 0
     last_value: float | None = None
     last_state = ""
+    n_tasks = len(objective.tasks)
+    spent_before = episode_count(study) if episode_budget is not None else 0
+    reserve = recipe.final_promotions * (recipe.batch - recipe.screen_batch) * n_tasks
+
+    def affordable(cost: int, keep: int = 0) -> bool:
+        return episode_budget is None or spent_before + episodes + cost + keep <= episode_budget
 
     def progress() -> Progress:
         p = Progress(counted_trials(study), recipe.trials, episodes, best_candidate(study), last_value, last_state)
@@ -534,11 +542,12 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
 
     from optuna.storages._heartbeat import get_heartbeat_thread
 
+    promotion = (recipe.batch - recipe.screen_batch) * n_tasks
     while True:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             optuna.storages.fail_stale_trials(study)  # trials of killed workers: failed, redone
-        if counted_trials(study) >= recipe.trials:
+        if counted_trials(study) >= recipe.trials or not affordable(recipe.screen_batch * n_tasks, reserve):
             break
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Heartbeat of storage")  # we run the heartbeat ourselves
@@ -548,12 +557,12 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         episodes += added
         last_value, last_state = value, "complete" if value is not None else "infeasible"
         if recipe.promote_every and objective.tasks and trial.number >= recipe.startup \
-                and (trial.number + 1) % recipe.promote_every == 0:
+                and (trial.number + 1) % recipe.promote_every == 0 and affordable(promotion, reserve):
             episodes += _promote(study, objective, recipe, runner, seed)
         progress()
     if objective.tasks:
         for _ in range(recipe.final_promotions):
-            if _top_is_promoted(study, recipe.final_promotions):
+            if _top_is_promoted(study, recipe.final_promotions) or not affordable(promotion):
                 break
             episodes += _promote(study, objective, recipe, runner, seed)
     return progress()

@@ -240,6 +240,8 @@ def _optimize(args: argparse.Namespace) -> int:
     recipe = Recipe.make(args.recipe, args.trials, args.batch, args.startup)
     if args.workers < 1:
         raise OptimizeError(f"--workers {args.workers} must be at least 1")
+    if args.episode_budget is not None and args.episode_budget < 1:
+        raise OptimizeError(f"--episode-budget {args.episode_budget} must be at least 1")
     policies = bundled_policies(objective.tasks)
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()})
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
@@ -268,7 +270,8 @@ def _optimize(args: argparse.Namespace) -> int:
 
     runner = EpisodeRunner(policies, workers=args.workers) if objective.tasks else None
     try:
-        result = optimize(study, objective, recipe, runner, args.seed, on_progress=show)
+        result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
+                          episode_budget=args.episode_budget)
     except KeyboardInterrupt:
         bar.close()
         print(f"\nstopped; finished trials are kept in {storage_url}. Run the same command to resume.",
@@ -418,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="standard: every trial gets the full batch; thesis: 1000 random + 1000 EI, batch 240 "
                         "(fixes --trials/--batch/--startup); efficient: screen on batch/15 episodes and promote the "
                         "best designs to the full batch (default standard)")
+    p.add_argument("--episode-budget", type=int, help="also stop once the study has spent this many episodes")
     p.add_argument("--storage", help="Optuna storage URL, e.g. sqlite:///study.db or postgresql://user@host/db "
                                      "(default $TUMBLEBOT_STORAGE, else sqlite:///tumblebot-optuna.db)")
     p.add_argument("--study", help="study name (default from the tasks and xi, e.g. nav-flat=1-xi3)")
@@ -446,6 +450,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "from the studies' (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_report)
+
+    from tumblebot.host.cli import add_commands as add_host_commands
+
+    add_host_commands(sub, _positive_int)
 
     p = sub.add_parser("demo", help="scripted episodes, the bundled policies and the power table",
                        description="What exists so far, in one minute: a scripted episode of each of "

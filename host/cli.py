@@ -1,0 +1,228 @@
+"""``tumblebot trial …`` and ``tumblebot twin …``: the host's commands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from tumblebot.errors import TumblebotError
+
+
+def _xy(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be two numbers X,Y (metres)") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"{text!r} must be finite")
+    return x, y
+
+
+def _policy_path(name: str, task: str) -> Path:
+    from tumblebot.sim.policy import PolicyError, bundled_policy
+
+    path = bundled_policy(name) if not name.endswith(".onnx") else Path(name)
+    if not path.is_file():
+        raise PolicyError(f"policy {name!r}: {path} does not exist (give a task with a bundled policy, "
+                          "or a .onnx file)")
+    return path
+
+
+def _trial_run(args: argparse.Namespace) -> int:
+    from tumblebot.host.controller import Controller, ControllerConfig
+    from tumblebot.host.link import AgentClient, load_host_key, parse_address
+    from tumblebot.host.mocap import open_source
+    from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
+    from tumblebot.sim.design import Design
+    from tumblebot.sim.policy import OnnxPolicy
+
+    design = Design.parse(args.design)
+    task = "nav-flat"
+    policy_path = _policy_path(args.policy, task)
+    policy = OnnxPolicy(policy_path, task=task)
+    try:
+        config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
+                                  agent_timeout=args.agent_timeout, max_speed=args.max_speed)
+    except ValueError as exc:
+        raise TumblebotError(str(exc)) from None
+    plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
+                     design, args.seed, config)
+    plan = open_trial_set(args.out, plan)
+    key = load_host_key(args.key)
+    agent = AgentClient(parse_address(args.agent), key)
+    source = open_source(args.mocap)
+    placer = TwinPlacer(parse_address(args.twin)) if args.twin else OperatorPlacer(source)
+    controller = Controller(source, agent, policy, plan.setpoint, plan.heading, config)
+
+    def on_logged(seq: int) -> None:
+        if args.print_writes:
+            sys.stdout.write(f"@written {seq}\n")
+            sys.stdout.flush()
+
+    try:
+        index = run_trial_set(args.out, plan, controller, placer, agent_wait=args.agent_wait, on_logged=on_logged)
+    except KeyboardInterrupt:
+        print(f"\nstopped; the robot was told to stop. Finished trials are in {args.out}/index.json; "
+              "run the same command to resume.", file=sys.stderr)
+        return 130
+    finally:
+        source.close()
+        agent.close()
+    print(f"trial set complete: {len(index['trials'])} trials in {args.out}")
+    return 0
+
+
+def _trial_analyze(args: argparse.Namespace) -> int:
+    from tumblebot.host.trials import analyze
+
+    stats = None
+    given = [args.baseline_mean, args.baseline_sd, args.baseline_n]
+    if any(v is not None for v in given):
+        if any(v is None for v in given):
+            raise TumblebotError("give all of --baseline-mean, --baseline-sd and --baseline-n")
+        stats = (float(args.baseline_mean), float(args.baseline_sd), int(args.baseline_n))
+    plot = args.plot or args.dir / "analysis.png"
+    result = analyze(args.dir, args.baseline, stats, plot)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    lo, hi = result["ci95"]
+    print(f"{args.dir}: {result['n']} trials, mean setpoint error {result['mean_error']:.3f} m "
+          f"(95 % CI {lo:.3f} … {hi:.3f}, sd {result['sd_error']:.3f})")
+    for pp in result["per_point"]:
+        plo, phi = pp["ci95"]
+        print(f"  start point {pp['point'] + 1} ({pp['start'][0]:+.2f}, {pp['start'][1]:+.2f}): n={pp['n']}, "
+              f"mean {pp['mean_error']:.3f} m ({plo:.3f} … {phi:.3f})")
+    e = result["e"]
+    print("  robot ({:.3f}, {:.3f}, {:.3f}, {:.3f}): e(w) = ".format(*result["design"])
+          + (f"{e:.2f} W/m" if e is not None else "inf (cannot tumble)"))
+    if "baseline" in result:
+        b = result["baseline"]
+        line = (f"baseline: n={b['n']}, mean {b['mean_error']:.3f} m (sd {b['sd_error']:.3f}); "
+                f"Welch t-test p = {b['p']:.3g}")
+        if b.get("e") is not None:
+            line += f"; baseline e(w) = {b['e']:.2f} W/m"
+        print(line)
+    print(f"trajectories: {result['plot']}")
+    return 0
+
+
+def _twin_world(args: argparse.Namespace) -> int:
+    from tumblebot.host.link import parse_address
+    from tumblebot.host.twin import run_world
+    from tumblebot.sim.design import Design
+
+    return run_world(parse_address(args.pose_to), parse_address(args.control), args.serial_link,
+                     Design.parse(args.design), args.seed)
+
+
+def _twin_run(args: argparse.Namespace) -> int:
+    from tumblebot.host.twin import consistency, run_twin
+    from tumblebot.sim.design import Design
+
+    code = run_twin(args.out, args.points, args.per_point, args.radius, args.setpoint, args.heading,
+                    Design.parse(args.design), args.seed, args.policy)
+    if code != 0:
+        return code
+    if args.check:
+        result = consistency(args.out, args.sim_episodes)
+        _print_consistency(result)
+        (args.out / "consistency.json").write_text(json.dumps(result, indent=2) + "\n")
+        return 0 if result["consistent"] else 1
+    return 0
+
+
+def _twin_check(args: argparse.Namespace) -> int:
+    from tumblebot.host.twin import consistency
+
+    result = consistency(args.dir, args.sim_episodes)
+    _print_consistency(result)
+    return 0 if result["consistent"] else 1
+
+
+def _print_consistency(r: dict[str, Any]) -> None:
+    verdict = "CONSISTENT" if r["consistent"] else "NOT CONSISTENT"
+    print(f"twin: mean error {r['twin_mean_error']:.3f} m over {r['twin_n']} trials; pure simulation from the same "
+          f"starts: {r['sim_mean_error']:.3f} m over {r['sim_n']} episodes; gap {r['gap']:+.3f} m "
+          f"(tolerance ±{r['tolerance']:.2f}), Welch p = {r['p']:.3g} (alpha {r['alpha']}): {verdict}")
+
+
+def add_commands(sub: Any, positive_int: Any) -> None:
+    p = sub.add_parser("trial", help="field trials: run a trial set with the robot, analyse it",
+                       description="Field trials (thesis §3.3): start points on a circle around a setpoint, several "
+                                   "trials each, the policy driving the robot from mocap poses.")
+    tsub = p.add_subparsers(dest="trial_command", required=True, metavar="{run,analyze}")
+    r = tsub.add_parser("run", help="run (or resume) a trial set",
+                        description="Guide the operator through a trial set: where to place the robot, its live "
+                                    "distance, then the trial. Each trial is logged to its own crash-safe MCAP file; "
+                                    "finished trials survive any interruption and the same command resumes the set.")
+    r.add_argument("--out", type=Path, required=True, help="trial-set folder (created; an existing one is resumed)")
+    r.add_argument("--mocap", required=True, help="pose source: udp://HOST:PORT?body=B, "
+                                                  "motioncapture://vicon@HOST?body=B, replay:///FILE.mcap, mock://")
+    r.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
+    r.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
+    r.add_argument("--design", required=True, help="the robot's design x,y,z,l (m), for its e(w) and the records")
+    r.add_argument("--policy", default="nav-flat", help="nav-flat (the bundled policy) or an ONNX file")
+    r.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="lab-frame goal X,Y (default 0,0)")
+    r.add_argument("--heading", type=float, default=0.0, help="lab-frame heading (rad) of the task frame's +x")
+    r.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")
+    r.add_argument("--points", type=positive_int, default=5, help="start points (default 5)")
+    r.add_argument("--per-point", type=positive_int, default=10, help="trials per start point (default 10)")
+    r.add_argument("--steps", type=positive_int, default=20, help="decisions per trial (default 20)")
+    r.add_argument("--period", type=float, default=1.0, help="seconds between decisions (default 1)")
+    r.add_argument("--lost-after", type=float, default=0.5, help="seconds without a pose = tracking lost (0.5)")
+    r.add_argument("--agent-timeout", type=float, default=1.5, help="seconds without telemetry = agent lost (1.5)")
+    r.add_argument("--agent-wait", type=float, default=300.0, help="seconds to wait for a lost agent (300)")
+    r.add_argument("--max-speed", type=float, default=3.0, help="m/s; faster pose jumps are outliers (3)")
+    r.add_argument("--seed", type=int, default=0, help="seed of the placement headings and the twin's episodes")
+    r.add_argument("--twin", help="HOST:PORT of a digital twin's world, which then places the robot itself")
+    r.add_argument("--print-writes", action="store_true",
+                   help="print '@written N' after each log message is on disk (for crash-safety tests)")
+    r.set_defaults(func=_trial_run)
+
+    a = tsub.add_parser("analyze", help="setpoint errors, CIs, a t-test against a baseline, trajectories",
+                        description="Report the final setpoint error per start point and overall with 95 %% CIs, a "
+                                    "Welch t-test against a baseline trial set or published numbers (the thesis: "
+                                    "0.433 m over 100 trials), e(w) of each robot, and a PNG of the trajectories.")
+    a.add_argument("dir", type=Path, help="trial-set folder")
+    a.add_argument("--baseline", type=Path, help="another trial-set folder to compare against")
+    a.add_argument("--baseline-mean", type=float, help="baseline mean error, m (e.g. 0.433)")
+    a.add_argument("--baseline-sd", type=float, help="baseline standard deviation, m")
+    a.add_argument("--baseline-n", type=int, help="baseline number of trials (e.g. 100)")
+    a.add_argument("--plot", type=Path, help="PNG of the trajectories (default DIR/analysis.png)")
+    a.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    a.set_defaults(func=_trial_analyze)
+
+    p = sub.add_parser("twin", help="the digital twin: the deployed stack against the simulator and the firmware",
+                       description="Simulator as world and robot, the real firmware in simavr, the real Pi agent "
+                                   "and the real host controller, each its own process over the lab's links.")
+    wsub = p.add_subparsers(dest="twin_command", required=True, metavar="{run,check,world}")
+    t = wsub.add_parser("run", help="run a trial set through the twin (and check it against pure simulation)")
+    t.add_argument("--out", type=Path, required=True, help="trial-set folder")
+    t.add_argument("--design", default="0.292,0.129,0.098,0.136", help="robot design (default: the ξ = 3 robot)")
+    t.add_argument("--policy", default="nav-flat", help="nav-flat or an ONNX file")
+    t.add_argument("--setpoint", type=_xy, default=(0.4, -0.3), help="lab-frame goal X,Y (default 0.4,-0.3)")
+    t.add_argument("--heading", type=float, default=0.5, help="task-frame heading, rad (default 0.5)")
+    t.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")
+    t.add_argument("--points", type=positive_int, default=3, help="start points (default 3)")
+    t.add_argument("--per-point", type=positive_int, default=1, help="trials per start point (default 1)")
+    t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    t.add_argument("--check", action="store_true", help="then test consistency with pure simulation")
+    t.add_argument("--sim-episodes", type=positive_int, default=16, help="simulated episodes per twin trial (16)")
+    t.set_defaults(func=_twin_run)
+    c = wsub.add_parser("check", help="test a twin trial set for consistency with pure simulation")
+    c.add_argument("dir", type=Path)
+    c.add_argument("--sim-episodes", type=positive_int, default=16, help="simulated episodes per twin trial (16)")
+    c.set_defaults(func=_twin_check)
+    w = wsub.add_parser("world", help="the world process alone (started by twin run)")
+    w.add_argument("--pose-to", required=True, help="HOST:PORT to send the pose stream to")
+    w.add_argument("--control", required=True, help="HOST:PORT to listen on for placement requests")
+    w.add_argument("--serial-link", type=Path, required=True, help="path for a symlink to the firmware's pty")
+    w.add_argument("--design", required=True)
+    w.add_argument("--seed", type=int, default=0)
+    w.set_defaults(func=_twin_world)

@@ -1,0 +1,212 @@
+"""The controller: mocap pose → task frame → ONNX policy → speed command, once a period.
+
+One trial is ``steps`` decisions ``period`` s apart (thesis: 20 × 1 s). A decision is made
+on the first accepted pose that arrives once it is due, so its latency is measured from
+that frame's arrival to the command datagram leaving. Between decisions the current
+command is resent every ``keepalive`` s (the agent stops the robot after 1 s without a
+valid datagram, the firmware after 250 ms without a frame from the agent).
+
+The robot is stopped, and the trial ends with the reason, when tracking is lost (no
+accepted pose for ``lost_after`` s), when the agent stops answering telemetry requests
+(``agent_timeout`` s), on Ctrl-C, and after the last decision.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tumblebot.host.link import AgentClient
+from tumblebot.host.mocap import Pose, PoseFilter, PoseSource
+from tumblebot.host.triallog import TrialLogWriter
+from tumblebot.sim.frames import to_task_frame
+
+COMPLETE = "complete"
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    period: float = 1.0  #: s between decisions (the policy was trained at 1 Hz)
+    steps: int = 20  #: decisions per trial
+    keepalive: float = 0.2  #: s between resends of the current command
+    lost_after: float = 0.5  #: s without an accepted pose = tracking lost
+    agent_timeout: float = 1.5  #: s without telemetry from the agent = agent lost
+    telemetry_every: float = 0.25  #: s between telemetry requests
+    max_speed: float = 3.0  #: m/s; faster pose jumps are outliers
+    first_pose_timeout: float = 3.0  #: s to wait for tracking at the start
+
+    def __post_init__(self) -> None:
+        for name in ("period", "keepalive", "lost_after", "agent_timeout", "telemetry_every", "max_speed",
+                     "first_pose_timeout"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"controller {name}={value!r} must be a positive number")
+        if self.steps < 1:
+            raise ValueError(f"controller steps={self.steps} must be at least 1")
+
+
+@dataclass
+class TrialResult:
+    status: str  #: complete, mocap_lost, agent_lost, no_mocap, interrupted
+    reason: str
+    decisions: int
+    final_position: tuple[float, float, float] | None = None
+    final_error: float | None = None  #: planar distance to the setpoint at the end, m
+    latencies_ms: list[float] = field(default_factory=list)
+    stop_latency: float | None = None  #: s from the cause of an abort to the STOP datagram
+
+    def to_json(self) -> dict[str, Any]:
+        return {"status": self.status, "reason": self.reason, "decisions": self.decisions,
+                "final_position": self.final_position, "final_error": self.final_error,
+                "stop_latency": self.stop_latency}
+
+
+class Controller:
+    """Runs trials of one policy toward one setpoint.
+
+    Args:
+        source: where poses come from (:func:`tumblebot.host.mocap.open_source`).
+        agent: the link to the Pi agent.
+        policy: anything with ``act(obs) -> (a_right, a_left)`` in {0, 1, 2}.
+        setpoint: lab-frame goal ``(x, y)``; heading: lab-frame direction (rad) that
+            becomes the task frame's +x.
+    """
+
+    def __init__(self, source: PoseSource, agent: AgentClient, policy: Any, setpoint: tuple[float, float],
+                 heading: float = 0.0, config: ControllerConfig | None = None) -> None:
+        self.source, self.agent, self.policy = source, agent, policy
+        self.setpoint, self.heading = setpoint, heading
+        self.config = config or ControllerConfig()
+        self.filter = PoseFilter(self.config.max_speed, self.config.lost_after)
+        self.command = (0, 0)
+
+    # ------------------------------------------------------------------ pieces
+    def observation(self, pose: Pose) -> np.ndarray:
+        position, quaternion = to_task_frame(pose.position, pose.quaternion, self.setpoint, self.heading)
+        return np.array([*position, *quaternion, *self.command], dtype=np.float32)
+
+    def distance(self, pose: Pose) -> float:
+        return math.hypot(pose.position[0] - self.setpoint[0], pose.position[1] - self.setpoint[1])
+
+    def pump(self, timeout: float, log: TrialLogWriter | None) -> list[Pose]:
+        """Read the source; accepted poses are logged and returned."""
+        accepted = []
+        for pose in self.source.poll(timeout):
+            if self.filter.offer(pose):
+                accepted.append(pose)
+                if log is not None:
+                    log.write("/pose", pose.to_json())
+        return accepted
+
+    def wait_for_tracking(self, timeout: float, log: TrialLogWriter | None = None) -> Pose | None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.pump(0.05, log)
+            if self.filter.last is not None and not self.filter.lost(time.monotonic()):
+                return self.filter.last
+        return None
+
+    def stop_robot(self, log: TrialLogWriter | None, why: str) -> float:
+        self.command = (0, 0)
+        sent = self.agent.stop()
+        if log is not None:
+            log.write("/command", {"right": 0, "left": 0, "kind": f"stop: {why}"})
+        return sent
+
+    # ------------------------------------------------------------------ a trial
+    def run_trial(self, log: TrialLogWriter | None = None,
+                  on_status: Callable[[int, Pose | None, float], None] | None = None) -> TrialResult:
+        """One trial. Always leaves the robot stopped (STOP is sent in ``finally``)."""
+        cfg = self.config
+        self.command = (0, 0)
+        result: TrialResult | None = None
+
+        def event(name: str, detail: str = "") -> None:
+            if log is not None:
+                log.write("/event", {"event": name, "detail": detail})
+
+        try:
+            if self.wait_for_tracking(cfg.first_pose_timeout, log) is None:
+                result = TrialResult("no_mocap", f"no pose from {self.source.url} for {cfg.first_pose_timeout:.1f} s",
+                                     0)
+                return result
+            self.agent.request_telemetry()
+            deadline = time.monotonic() + cfg.agent_timeout
+            while not self.agent.poll():
+                if time.monotonic() > deadline:
+                    result = TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
+                                         f" did not answer within {cfg.agent_timeout:.1f} s", 0)
+                    return result
+                self.pump(0.02, log)
+            event("start", f"setpoint {self.setpoint}, heading {self.heading:.3f} rad")
+            start = time.monotonic()
+            next_decision, decisions = start, 0
+            end = start + cfg.steps * cfg.period
+            last_sent = -1e9
+            latencies: list[float] = []
+            fresh: Pose | None = None
+            while True:
+                now = time.monotonic()
+                timeout = min(0.02, max(0.0, next_decision - now)) if decisions < cfg.steps else 0.02
+                for pose in self.pump(timeout, log):
+                    fresh = pose
+                now = time.monotonic()
+                if decisions < cfg.steps and fresh is not None and fresh.t >= next_decision - 1e-3 \
+                        and now >= next_decision - 1e-3:
+                    obs = self.observation(fresh)
+                    action = np.asarray(self.policy.act(obs)).reshape(-1)
+                    self.command = (int(action[0]) - 1, int(action[1]) - 1)
+                    last_sent = self.agent.command(*self.command)
+                    latency = (last_sent - fresh.t) * 1e3
+                    latencies.append(latency)
+                    if log is not None:
+                        log.write("/decision", {"step": decisions, "observation": [float(v) for v in obs],
+                                                "command": list(self.command), "distance": self.distance(fresh),
+                                                "latency_ms": latency})
+                        log.write("/command", {"right": self.command[0], "left": self.command[1], "kind": "policy"})
+                    decisions += 1
+                    next_decision = start + decisions * cfg.period
+                    if on_status is not None:
+                        on_status(decisions, fresh, self.distance(fresh))
+                if decisions >= cfg.steps and now >= end:
+                    final = self.filter.last
+                    assert final is not None
+                    stop_sent = self.stop_robot(log, "end of trial")
+                    result = TrialResult(COMPLETE, "all decisions made", decisions, final.position,
+                                         self.distance(final), latencies, stop_sent - now)
+                    event("end", f"final error {result.final_error:.3f} m")
+                    return result
+                if self.filter.lost(now):
+                    assert self.filter.last is not None
+                    lost_at = self.filter.last.t + cfg.lost_after
+                    stop_sent = self.stop_robot(log, "mocap lost")
+                    result = TrialResult("mocap_lost", f"no pose for {self.filter.age(now):.2f} s", decisions,
+                                         latencies_ms=latencies, stop_latency=stop_sent - lost_at)
+                    return result
+                if now - self.agent.last_request_at >= cfg.telemetry_every:
+                    self.agent.request_telemetry()
+                for body in self.agent.poll():
+                    if log is not None:
+                        log.write("/telemetry", body)
+                if self.agent.silent_for(now) > cfg.agent_timeout:
+                    stop_sent = self.stop_robot(log, "agent not answering")
+                    result = TrialResult("agent_lost", f"no telemetry from the agent for "
+                                         f"{self.agent.silent_for(now):.1f} s", decisions, latencies_ms=latencies,
+                                         stop_latency=stop_sent - (self.agent.last_telemetry_at + cfg.agent_timeout))
+                    return result
+                if now - last_sent >= cfg.keepalive:
+                    last_sent = self.agent.command(*self.command)
+        except KeyboardInterrupt:
+            self.stop_robot(log, "interrupted")
+            event("interrupted", "Ctrl-C")
+            raise
+        finally:
+            for _ in range(3):  # the robot is stopped whatever happened; repeated in case one is lost
+                self.agent.stop()
+            if result is not None and result.status != COMPLETE and log is not None:
+                event(result.status, result.reason)

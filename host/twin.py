@@ -1,0 +1,315 @@
+"""The digital twin: the whole deployed stack against the simulator and the real firmware.
+
+Four processes talk over the lab's own links::
+
+    world (this module) --UDP pose stream--> host (tumblebot trial run: controller, logs)
+       ^      |                                   |
+       |   firmware in simavr <--serial/pty-- Pi agent <--UDP commands--
+       +-- servo pulses measured on pins D9/D10
+
+The world process steps PyBullet in real time at 240 Hz, publishes the robot's pose like
+a mocap system (100 Hz UDP pose stream), and drives the legs from the servo pulse widths
+the emulated firmware puts on its pins, with the servos' physical mounting (the left one
+mirrored). Nothing between the pose stream and the pins is a test double: the host, the
+agent and the firmware are the production code. So a wrong frame transform, servo
+direction or timing shows up as a gap between the twin's setpoint errors and those of a
+pure-simulation evaluation from the same start points (:func:`consistency`).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.errors import TumblebotError
+from tumblebot.host.mocap import encode_pose_datagram
+from tumblebot.sim.design import Design
+from tumblebot.sim.evaluate import episode_seed
+
+REPO = Path(__file__).resolve().parents[1]
+NEUTRAL_US = 1500.0
+FULL_SPEED_US = 500.0  #: pulse offset for full speed (1000/2000 µs)
+DEADBAND_US = 10.0  #: continuous-rotation servos do not move within a few µs of neutral
+#: Physical servo mounting: the right servo turns its leg forward for longer pulses; the
+#: left one is mounted mirrored (SPEC §5).
+MOUNTING = {"right": +1.0, "left": -1.0}
+
+
+class TwinError(TumblebotError):
+    """The twin cannot run (no source checkout, no AVR toolchain or simavr)."""
+
+
+def _emulator() -> Any:
+    path = REPO / "hil_tests" / "emulator.py"
+    if not path.exists():
+        raise TwinError("tumblebot twin runs the firmware from a source checkout (hil_tests/emulator.py is missing)")
+    spec = importlib.util.spec_from_file_location("tumblebot_twin_emulator", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def pulse_to_command(width: float | None, mounting: float) -> float:
+    """A servo's pulse width (µs) → its leg's command in [-1, 1] (no pulse: stopped)."""
+    if width is None:
+        return 0.0
+    offset = width - NEUTRAL_US
+    if abs(offset) < DEADBAND_US:
+        return 0.0
+    return max(-1.0, min(1.0, mounting * offset / FULL_SPEED_US))
+
+
+def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
+              body: str = "tumbler", pose_rate: float = 100.0) -> int:
+    """The world process: real-time physics, mocap out, servo pulses in. Runs until
+    SIGTERM/SIGINT or a ``quit`` control datagram."""
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.randomization import Randomization
+
+    emulator = _emulator()
+    try:
+        emulator.build()
+    except (subprocess.CalledProcessError, FileNotFoundError) as exc:
+        raise TwinError(f"cannot build the firmware and the simavr harness ({exc}); ./dev.sh test installs "
+                        "the AVR toolchain and simavr") from None
+    uno = emulator.EmulatedUno(paced=True)
+    if serial_link.is_symlink() or serial_link.exists():
+        serial_link.unlink()
+    serial_link.symlink_to(uno.pty)
+    # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
+    env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)))
+    ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ctl.bind(control)
+    ctl.setblocking(False)
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stop = {"now": False}
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    print(f"@ready pty={uno.pty} control={control[0]}:{control[1]}", flush=True)
+    dt = 1.0 / env.physics_hz
+    pose_every = max(1, round(env.physics_hz / pose_rate))
+    placed = False
+    seq = 0
+    sim_time = 0.0
+    wall0 = time.monotonic()
+    substeps = 0
+    try:
+        while not stop["now"]:
+            readable, _, _ = select.select([ctl], [], [], 0.0)
+            if readable:
+                data, source = ctl.recvfrom(4096)
+                reply = _control(env, data, seed)
+                if reply.pop("placed", False):
+                    placed, wall0, substeps, sim_time = True, time.monotonic(), 0, 0.0
+                if reply.pop("quit", False):
+                    stop["now"] = True
+                ctl.sendto(json.dumps(reply).encode(), source)
+            if not placed:
+                time.sleep(0.005)
+                continue
+            due = int((time.monotonic() - wall0) / dt)
+            if due <= substeps:
+                time.sleep(0.0005)
+                continue
+            right_us, left_us = uno.widths()
+            env.set_leg_commands(pulse_to_command(right_us, MOUNTING["right"]),
+                                 pulse_to_command(left_us, MOUNTING["left"]))
+            for _ in range(min(due - substeps, 24)):  # if the host stalls, do not race to catch up
+                env.advance(1)
+                substeps += 1
+                sim_time += dt
+                if substeps % pose_every == 0:
+                    position, quaternion = env.base_pose()
+                    seq += 1
+                    out.sendto(encode_pose_datagram(body, seq, sim_time, position, quaternion), pose_to)
+            substeps = max(substeps, due - 24)
+    finally:
+        env.close()
+        uno.close()
+        ctl.close()
+        out.close()
+        if serial_link.is_symlink():
+            serial_link.unlink()
+    return 0
+
+
+def _control(env: Any, data: bytes, seed: int) -> dict[str, Any]:
+    try:
+        msg = json.loads(data)
+        if msg.get("cmd") == "place":
+            trial = int(msg["trial"])
+            x, y, yaw = float(msg["x"]), float(msg["y"]), float(msg["yaw"])
+            if not all(math.isfinite(v) for v in (x, y, yaw)) or trial < 0:
+                raise ValueError("non-finite start")
+            env.reset(seed=episode_seed(seed, trial), options={"start_xy": (x, y), "start_yaw": yaw})
+            env.set_leg_commands(0.0, 0.0)
+            return {"ok": True, "placed": True}
+        if msg.get("cmd") == "quit":
+            return {"ok": True, "quit": True}
+        return {"ok": False, "error": f"unknown command {msg.get('cmd')!r}"}
+    except (ValueError, KeyError, TypeError, json.JSONDecodeError) as exc:
+        return {"ok": False, "error": f"bad control datagram: {exc}"}
+
+
+# ----------------------------------------------------------------------------- orchestration
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class TwinStack:
+    """Starts the world and the agent as processes; the host is run against them."""
+
+    def __init__(self, workdir: Path, design: Design, seed: int) -> None:
+        from tumblebot.host.link import new_key
+
+        self.workdir = workdir
+        self.key = workdir / "agent.key"
+        new_key(self.key)
+        self.pose_port, self.control_port, self.agent_port = free_port(), free_port(), free_port()
+        self.serial_link = workdir / "ttyTWIN"
+        self.agent_config = workdir / "agent.toml"
+        self.agent_config.write_text(
+            f'serial_port = "{self.serial_link}"\nbind_address = "127.0.0.1"\nbind_port = {self.agent_port}\n'
+            f'allowed_host = "127.0.0.1"\nkey_file = "{self.key}"\n')
+        self.agent: subprocess.Popen[bytes] | None = None
+        self.world_log = (workdir / "world.log").open("w")
+        self.world = subprocess.Popen(
+            [sys.executable, "-m", "tumblebot.cli", "twin", "world", "--pose-to", f"127.0.0.1:{self.pose_port}",
+             "--control", f"127.0.0.1:{self.control_port}", "--serial-link", str(self.serial_link),
+             "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed)],
+            stdout=subprocess.PIPE, stderr=self.world_log, text=True)
+        assert self.world.stdout is not None
+        line = self.world.stdout.readline()
+        if not line.startswith("@ready"):
+            self.close()
+            tail = (workdir / "world.log").read_text().strip().splitlines()[-3:]
+            raise TwinError("the world process did not start: " + (" | ".join(tail) or "no output"))
+        self.start_agent()
+
+    def start_agent(self) -> None:
+        self.agent_log = (self.workdir / "agent.log").open("a")
+        self.agent = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config",
+                                       str(self.agent_config)], stdout=self.agent_log, stderr=subprocess.STDOUT)
+
+    def kill_agent(self) -> None:
+        if self.agent is not None:
+            self.agent.kill()
+            self.agent.wait()
+            self.agent = None
+
+    def host_args(self) -> list[str]:
+        return ["--mocap", f"udp://127.0.0.1:{self.pose_port}?body=tumbler", "--agent",
+                f"127.0.0.1:{self.agent_port}", "--key", str(self.key), "--twin", f"127.0.0.1:{self.control_port}"]
+
+    def close(self) -> None:
+        self.kill_agent()
+        if self.world.poll() is None:
+            self.world.send_signal(signal.SIGTERM)
+            try:
+                self.world.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.world.kill()
+                self.world.wait()
+        self.world_log.close()
+
+    def __enter__(self) -> TwinStack:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tuple[float, float], heading: float,
+             design: Design, seed: int, policy: str, extra: list[str] | None = None) -> int:
+    """Run a trial set through the twin (the host as its own process). Returns its exit code."""
+    with tempfile.TemporaryDirectory(prefix="tumblebot-twin-") as tmp, TwinStack(Path(tmp), design, seed) as stack:
+        cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--points", str(points),
+               "--per-point", str(per_point), "--radius", str(radius), "--setpoint", f"{setpoint[0]},{setpoint[1]}",
+               "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
+               "--policy", policy, *stack.host_args(), *(extra or [])]
+        return subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
+
+
+# ----------------------------------------------------------------------------- consistency
+def simulate_starts(folder: Path, episodes_per_trial: int = 16, workers: int = 1) -> dict[str, Any]:
+    """Pure-simulation final errors from the trial set's own start points and headings.
+
+    For each finished trial: the same start point and yaw, expressed in the task frame,
+    with ``episodes_per_trial`` episode seeds (the trial's own first), through
+    ``TumblerEnv.step`` and the ONNX policy: what ``tumblebot evaluate`` does, from these
+    starts.
+    """
+    from tumblebot.host.trials import TrialPlan, load_index
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.frames import to_task_frame, yaw_quaternion
+    from tumblebot.sim.policy import OnnxPolicy
+    from tumblebot.sim.randomization import Randomization
+
+    plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
+    index = load_index(folder)
+    policy = OnnxPolicy(Path(plan.policy), task=plan.task)
+    env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False))
+    errors: list[float] = []
+    try:
+        for entry in index["trials"]:
+            trial = entry["trial"]
+            yaw_lab = plan.start_yaw(trial)
+            pos, quat = to_task_frame((*entry["start"], 0.0), yaw_quaternion(yaw_lab), plan.setpoint, plan.heading)
+            yaw_task = 2 * math.atan2(quat[2], quat[3])
+            for j in range(episodes_per_trial):
+                s = episode_seed(plan.seed, trial) if j == 0 else episode_seed(plan.seed + 1_000_003 * j, trial)
+                obs, _ = env.reset(seed=s, options={"start_xy": (float(pos[0]), float(pos[1])), "start_yaw": yaw_task})
+                info: dict[str, Any] = {}
+                for _ in range(env.episode_steps):
+                    obs, _, _, truncated, info = env.step(policy.act(obs))
+                    if truncated:
+                        break
+                fx, fy = info["final_position"][:2]
+                errors.append(math.hypot(fx, fy))
+    finally:
+        env.close()
+    return {"errors": errors, "episodes_per_trial": episodes_per_trial}
+
+
+def consistency(folder: Path, episodes_per_trial: int = 16, alpha: float = 0.01, tolerance: float = 0.30
+                ) -> dict[str, Any]:
+    """Are the twin's setpoint errors consistent with pure simulation from the same starts?
+
+    Passes when a Welch t-test does not reject equal means at ``alpha`` **and** the mean
+    errors differ by at most ``tolerance`` m. Both are needed: with three twin trials the
+    test alone has little power, and the tolerance alone ignores the spread.
+    """
+    from scipy import stats
+
+    from tumblebot.host.trials import summarize
+
+    twin = summarize(folder).errors
+    sim = np.array(simulate_starts(folder, episodes_per_trial)["errors"])
+    if len(twin) < 2:
+        raise TwinError("the consistency test needs at least two finished twin trials")
+    p = float(stats.ttest_ind(twin, sim, equal_var=False).pvalue)
+    gap = float(twin.mean() - sim.mean())
+    return {"twin_mean_error": float(twin.mean()), "twin_n": len(twin), "sim_mean_error": float(sim.mean()),
+            "sim_n": len(sim), "gap": gap, "p": p, "alpha": alpha, "tolerance": tolerance,
+            "consistent": bool(p >= alpha and abs(gap) <= tolerance)}
