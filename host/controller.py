@@ -103,6 +103,15 @@ class Controller:
                     log.write("/pose", pose.to_json())
         return accepted
 
+    def drain(self) -> int:
+        """Discard every pose waiting in the source; returns how many."""
+        n = 0
+        while True:
+            poses = self.source.poll(0.0)
+            if not poses:
+                return n
+            n += len(poses)
+
     def wait_for_tracking(self, timeout: float, log: TrialLogWriter | None = None) -> Pose | None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -125,6 +134,10 @@ class Controller:
         cfg = self.config
         self.command = (0, 0)
         result: TrialResult | None = None
+        # A new trial: forget the last one's poses, and drop poses queued while the robot
+        # was being placed (they show where it was, not where it is).
+        self.filter = PoseFilter(cfg.max_speed, cfg.lost_after)
+        self.drain()
 
         def event(name: str, detail: str = "") -> None:
             if log is not None:

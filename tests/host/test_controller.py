@@ -1,0 +1,185 @@
+"""The controller against the real agent (in a thread, serial on pyserial's loop://) and a
+UDP pose stream: decisions, frames, and every way a trial stops the robot."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.link import AgentClient
+from tumblebot.host.mocap import encode_pose_datagram, open_source
+from tumblebot.host.triallog import TrialLogWriter, read_trial
+from tumblebot.pi_agent.agent import Agent, AgentConfig
+from tumblebot.sim.frames import yaw_quaternion
+from tumblebot.sim.policy import OnnxPolicy, bundled_policy
+
+KEY = bytes(range(32))
+
+
+@dataclass
+class Publisher:
+    """A mocap system: poses of a robot at ``position``/``yaw`` at 100 Hz while ``on``."""
+
+    address: tuple[str, int]
+    position: tuple[float, float, float] = (1.0, 0.5, 0.05)
+    yaw: float = 0.3
+    on: bool = True
+    stopped_at: float | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+
+    def run(self) -> None:
+        import socket
+
+        seq = 0
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            while not self._stop.is_set():
+                if self.on:
+                    seq += 1
+                    s.sendto(encode_pose_datagram("tumbler", seq, time.time(), self.position,
+                                                  yaw_quaternion(self.yaw)), self.address)
+                time.sleep(0.01)
+
+    def dropout(self) -> None:
+        self.on = False
+        self.stopped_at = time.monotonic()
+
+
+@dataclass
+class Lab:
+    publisher: Publisher
+    agent: Agent
+    client: AgentClient
+    source: object
+    stop_agent: threading.Event
+    agent_thread: threading.Thread
+
+    def controller(self, policy: object, **cfg: float) -> Controller:
+        config = ControllerConfig(**{"period": 0.1, "steps": 5, **cfg})  # type: ignore[arg-type]
+        return Controller(self.source, self.client, policy, (0.2, -0.1), 0.4, config)  # type: ignore[arg-type]
+
+    def kill_agent(self) -> None:
+        self.stop_agent.set()
+        self.agent_thread.join()
+
+
+@pytest.fixture
+def lab() -> Iterator[Lab]:
+    source = open_source("udp://127.0.0.1:0?body=tumbler")
+    publisher = Publisher(source.address)  # type: ignore[attr-defined]
+    pub_thread = threading.Thread(target=publisher.run, daemon=True)
+    pub_thread.start()
+    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=0,
+                              allowed_host="127.0.0.1"), KEY)
+    stop_agent = threading.Event()
+    agent_thread = threading.Thread(target=agent.run, args=(stop_agent.is_set,), daemon=True)
+    agent_thread.start()
+    client = AgentClient(agent.address, KEY)
+    try:
+        yield Lab(publisher, agent, client, source, stop_agent, agent_thread)
+    finally:
+        publisher._stop.set()
+        stop_agent.set()
+        agent_thread.join(timeout=2)
+        source.close()
+        client.close()
+
+
+class Scripted:
+    """A policy that records what it saw and answers from a script."""
+
+    def __init__(self, actions: list[tuple[int, int]], raise_at: int | None = None) -> None:
+        self.actions, self.raise_at, self.seen = actions, raise_at, []  # type: ignore[var-annotated]
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        self.seen.append(obs.copy())
+        if self.raise_at is not None and len(self.seen) > self.raise_at:
+            raise KeyboardInterrupt
+        return np.array(self.actions[(len(self.seen) - 1) % len(self.actions)])
+
+
+def test_that_a_trial_makes_its_decisions_on_task_frame_poses_and_ends_stopped(lab: Lab, tmp_path: Path) -> None:
+    policy = Scripted([(2, 0), (1, 1)])
+    with TrialLogWriter(tmp_path / "t.mcap") as log:
+        result = lab.controller(policy).run_trial(log)
+    assert result.status == "complete" and result.decisions == 5
+    # Lab pose (1.0, 0.5) with setpoint (0.2, -0.1) and heading 0.4 rad, in the task frame:
+    dx, dy = 1.0 - 0.2, 0.5 + 0.1
+    expect = (math.cos(0.4) * dx + math.sin(0.4) * dy, -math.sin(0.4) * dx + math.cos(0.4) * dy)
+    obs = policy.seen[0]
+    assert obs[:2] == pytest.approx(expect, abs=1e-5)
+    assert 2 * math.atan2(obs[5], obs[6]) == pytest.approx(0.3 - 0.4, abs=1e-5)
+    assert list(obs[7:]) == [0, 0] and list(policy.seen[1][7:]) == [1, -1]  # the last command is observed
+    assert result.final_error == pytest.approx(math.hypot(dx, dy), abs=1e-4)
+    assert max(result.latencies_ms) < 50
+    log_ = read_trial(tmp_path / "t.mcap")
+    assert len(log_.topic("/decision")) == 5 and log_.topic("/telemetry") and log_.topic("/pose")
+    time.sleep(0.15)
+    assert lab.agent.command == (0, 0)  # the agent was told to stop
+
+
+def test_that_the_bundled_policy_drives_the_controller(lab: Lab) -> None:
+    result = lab.controller(OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")).run_trial()
+    assert result.status == "complete" and result.decisions == 5
+
+
+def test_that_mocap_dropout_stops_the_robot_within_one_second(lab: Lab) -> None:
+    policy = Scripted([(2, 2)])
+    timer = threading.Timer(0.3, lab.publisher.dropout)
+    timer.start()
+    result = lab.controller(policy, steps=50, lost_after=0.5).run_trial()
+    assert result.status == "mocap_lost" and "no pose" in result.reason
+    stopped_by = time.monotonic()
+    deadline = lab.publisher.stopped_at + 1.0  # type: ignore[operator]
+    while lab.agent.command != (0, 0):
+        assert time.monotonic() < deadline, "the agent was still driving 1 s after the dropout"
+        time.sleep(0.005)
+    assert stopped_by - lab.publisher.stopped_at < 1.0  # type: ignore[operator]
+    assert result.stop_latency is not None and result.stop_latency < 0.1
+
+
+def test_that_a_dead_agent_is_reported_and_the_robot_commanded_to_stop(lab: Lab) -> None:
+    threading.Timer(0.3, lab.kill_agent).start()
+    result = lab.controller(Scripted([(2, 2)]), steps=50, agent_timeout=0.6).run_trial()
+    assert result.status == "agent_lost" and "no telemetry" in result.reason
+
+
+def test_that_no_tracking_at_the_start_never_moves_the_robot(lab: Lab) -> None:
+    lab.publisher.on = False
+    time.sleep(0.6)
+    policy = Scripted([(2, 2)])
+    result = lab.controller(policy, first_pose_timeout=0.5).run_trial()
+    assert result.status == "no_mocap" and policy.seen == []
+
+
+def test_that_ctrl_c_stops_the_robot_and_propagates(lab: Lab) -> None:
+    policy = Scripted([(2, 2)], raise_at=2)
+    with pytest.raises(KeyboardInterrupt):
+        lab.controller(policy, steps=10).run_trial()
+    time.sleep(0.15)
+    assert lab.agent.command == (0, 0)
+
+
+def test_that_duplicate_and_late_frames_do_not_make_extra_decisions(lab: Lab) -> None:
+    import socket
+
+    policy = Scripted([(1, 1)])
+
+    def noise() -> None:  # replayed old frames from another sender on the same port
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(100):
+                s.sendto(encode_pose_datagram("tumbler", 1, 0.0, (5.0, 5.0, 0.05), (0, 0, 0, 1)),
+                         lab.publisher.address)
+                time.sleep(0.003)
+
+    threading.Thread(target=noise, daemon=True).start()
+    result = lab.controller(policy).run_trial()
+    assert result.status == "complete" and len(policy.seen) == 5
+    assert all(abs(o[0]) < 2 for o in policy.seen)  # never decided on the replayed (5, 5) frames
