@@ -184,6 +184,8 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer:
             out(f"trial {trial + 1}/{plan.trials} (start point {k + 1} of {plan.points})")
             placer.place(trial, point, plan.start_yaw(trial))
             path = folder / f"trial-{trial:04d}.mcap"
+            if path.exists():  # the host died during this trial (kill -9, power): keep its log, redo the trial
+                _set_aside(folder, index, trial, path, "host_crashed", "the host stopped during the trial")
             log = TrialLogWriter(path, {"trial": str(trial), "point": str(k), "start": json.dumps(point),
                                         "setpoint": json.dumps(plan.setpoint), "design": json.dumps(plan.design),
                                         "policy_sha256": plan.policy_sha256}, on_written=on_logged)
@@ -194,13 +196,8 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer:
             finally:
                 log.finish()
                 if result is None or result.status != COMPLETE:
-                    attempt = len([a for a in index["aborted"] if a["trial"] == trial]) + 1
-                    aborted = path.with_name(f"trial-{trial:04d}.aborted-{attempt}.mcap")
-                    path.replace(aborted)
-                    index["aborted"].append({"trial": trial, "file": aborted.name,
-                                             "status": result.status if result else "interrupted",
-                                             "reason": result.reason if result else "stopped (Ctrl-C or an error)"})
-                    write_json_atomic(folder / "index.json", index)
+                    _set_aside(folder, index, trial, path, result.status if result else "interrupted",
+                               result.reason if result else "stopped (Ctrl-C or an error)")
             assert result is not None
             if result.status == COMPLETE:
                 index["trials"].append({"trial": trial, "point": k, "start": list(point), "file": path.name,
@@ -216,6 +213,15 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer:
             if result.status == "agent_lost":
                 _wait_for_agent(controller, agent_wait, out)
     return index
+
+
+def _set_aside(folder: Path, index: dict[str, Any], trial: int, path: Path, status: str, reason: str) -> None:
+    """Keep an unfinished trial's log as ``trial-NNNN.aborted-K.mcap`` and record why."""
+    attempt = len([a for a in index["aborted"] if a["trial"] == trial]) + 1
+    aborted = path.with_name(f"trial-{trial:04d}.aborted-{attempt}.mcap")
+    path.replace(aborted)
+    index["aborted"].append({"trial": trial, "file": aborted.name, "status": status, "reason": reason})
+    write_json_atomic(folder / "index.json", index)
 
 
 def _wait_for_agent(controller: Controller, timeout: float, out: Callable[[str], None]) -> None:

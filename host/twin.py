@@ -108,6 +108,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     dt = 1.0 / env.physics_hz
     pose_every = max(1, round(env.physics_hz / pose_rate))
     placed = False
+    publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
     seq = 0
     sim_time = 0.0
     wall0 = time.monotonic()
@@ -117,7 +118,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
             readable, _, _ = select.select([ctl], [], [], 0.0)
             if readable:
                 data, source = ctl.recvfrom(4096)
-                reply = _control(env, data, seed)
+                reply = _control(env, data, seed, uno, publish)
                 if reply.pop("placed", False):
                     placed, wall0, substeps, sim_time = True, time.monotonic(), 0, 0.0
                 if reply.pop("quit", False):
@@ -137,7 +138,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
                 env.advance(1)
                 substeps += 1
                 sim_time += dt
-                if substeps % pose_every == 0:
+                if substeps % pose_every == 0 and publish["on"]:
                     position, quaternion = env.base_pose()
                     seq += 1
                     out.sendto(encode_pose_datagram(body, seq, sim_time, position, quaternion), pose_to)
@@ -152,9 +153,17 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     return 0
 
 
-def _control(env: Any, data: bytes, seed: int) -> dict[str, Any]:
+def _control(env: Any, data: bytes, seed: int, uno: Any, publish: dict[str, bool]) -> dict[str, Any]:
+    """One control datagram: ``place`` (a trial's start), ``mocap`` (``on``: true/false, to
+    simulate losing tracking), ``status`` (the servo pulse widths on the pins), ``quit``."""
     try:
         msg = json.loads(data)
+        if msg.get("cmd") == "mocap":
+            publish["on"] = bool(msg["on"])
+            return {"ok": True}
+        if msg.get("cmd") == "status":
+            right, left = uno.widths()
+            return {"ok": True, "widths": [right, left], "mocap": publish["on"]}
         if msg.get("cmd") == "place":
             trial = int(msg["trial"])
             x, y, yaw = float(msg["x"]), float(msg["y"]), float(msg["yaw"])
@@ -162,6 +171,7 @@ def _control(env: Any, data: bytes, seed: int) -> dict[str, Any]:
                 raise ValueError("non-finite start")
             env.reset(seed=episode_seed(seed, trial), options={"start_xy": (x, y), "start_yaw": yaw})
             env.set_leg_commands(0.0, 0.0)
+            publish["on"] = True
             return {"ok": True, "placed": True}
         if msg.get("cmd") == "quit":
             return {"ok": True, "quit": True}

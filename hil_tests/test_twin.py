@@ -1,0 +1,184 @@
+"""The digital twin: the deployed stack (host, agent, firmware in simavr) against the
+simulator, each component its own process over the lab's links."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.link import AgentClient, load_host_key
+from tumblebot.host.mocap import open_source
+from tumblebot.host.trials import TwinPlacer, load_index
+from tumblebot.host.triallog import read_trial
+from tumblebot.host.twin import TwinStack
+from tumblebot.sim.design import Design
+
+pytestmark = [pytest.mark.hil, pytest.mark.slow]
+XI3 = Design(0.292, 0.129, 0.098, 0.136)
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, check=False, stdin=subprocess.DEVNULL, env=ENV)
+
+
+def control(stack: TwinStack, msg: dict) -> dict:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.settimeout(5)
+        s.sendto(json.dumps(msg).encode(), ("127.0.0.1", stack.control_port))
+        return json.loads(s.recv(4096))  # type: ignore[no-any-return]
+
+
+def test_that_three_navigation_trials_through_the_twin_agree_with_pure_simulation(tmp_path: Path) -> None:
+    out = tmp_path / "twin"
+    run = tb("twin", "run", "--out", str(out), "--points", "3", "--per-point", "1", "--check")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "CONSISTENT" in run.stdout
+    check = json.loads((out / "consistency.json").read_text())
+    assert check["consistent"] and check["twin_n"] == 3
+    index = load_index(out)
+    assert len(index["trials"]) == 3 and index["aborted"] == []
+    for entry in index["trials"]:
+        log = read_trial(out / entry["file"])
+        assert log.complete and len(log.topic("/decision")) == 20
+    analysis = tb("trial", "analyze", str(out), "--baseline-mean", "0.433", "--baseline-sd", "0.25",
+                  "--baseline-n", "100", "--json")
+    assert analysis.returncode == 0, analysis.stderr
+    result = json.loads(analysis.stdout)
+    assert result["n"] == 3 and 0 <= result["baseline"]["p"] <= 1 and len(result["per_point"]) == 3
+    assert (out / "analysis.png").stat().st_size > 10_000
+
+
+def _connected_client(stack: TwinStack) -> AgentClient:
+    client = AgentClient(("127.0.0.1", stack.agent_port), load_host_key(stack.key))
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        client.request_telemetry()
+        time.sleep(0.2)
+        if any(t.get("serial_connected") for t in client.poll()):
+            return client
+    raise AssertionError("the agent never heard the firmware's READY")
+
+
+def test_that_losing_mocap_in_the_twin_has_the_servos_neutral_within_one_second(tmp_path: Path) -> None:
+    class Forward:
+        def act(self, obs: np.ndarray) -> np.ndarray:
+            return np.array([2, 2])
+
+    with TwinStack(tmp_path, XI3, seed=3) as stack:
+        client = _connected_client(stack)
+        source = open_source(f"udp://127.0.0.1:{stack.pose_port}?body=tumbler")
+        TwinPlacer(("127.0.0.1", stack.control_port)).place(0, (0.0, 0.0), 0.0)
+        controller = Controller(source, client, Forward(), (3.0, 0.0), 0.0, ControllerConfig(steps=30))
+        results: list = []
+        worker = threading.Thread(target=lambda: results.append(controller.run_trial()))
+        worker.start()
+        deadline = time.monotonic() + 10
+        while control(stack, {"cmd": "status"})["widths"] != [2000.5, 1000.5]:  # driving forward
+            assert time.monotonic() < deadline, control(stack, {"cmd": "status"})
+            time.sleep(0.05)
+        time.sleep(1.0)
+        control(stack, {"cmd": "mocap", "on": False})
+        lost = time.monotonic()
+        while True:
+            widths = control(stack, {"cmd": "status"})["widths"]
+            if all(abs(w - 1500.5) < 2 for w in widths):
+                break
+            assert time.monotonic() - lost < 1.0, f"servos still at {widths} 1 s after the dropout"
+            time.sleep(0.01)
+        worker.join(timeout=10)
+        assert results and results[0].status == "mocap_lost"
+        source.close()
+        client.close()
+
+
+def _host(stack: TwinStack, out: Path, *extra: str) -> subprocess.Popen[str]:
+    cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--design", "0.292,0.129,0.098,0.136",
+           "--setpoint", "0.4,-0.3", "--steps", "6", "--period", "0.5", *stack.host_args(), *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
+                            stdin=subprocess.DEVNULL)
+
+
+def _read_until(proc: subprocess.Popen[str], marker: str, seen: list[str], timeout: float = 60) -> None:
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            raise AssertionError(f"host exited before {marker!r}: {''.join(seen[-20:])}")
+        seen.append(line)
+        if marker in line:
+            return
+    raise AssertionError(f"no {marker!r} within {timeout} s")
+
+
+def test_that_a_killed_agent_is_reported_and_a_restarted_one_lets_the_set_continue(tmp_path: Path) -> None:
+    out = tmp_path / "set"
+    with TwinStack(tmp_path, XI3, seed=4) as stack:
+        _connected_client(stack).close()
+        host = _host(stack, out, "--points", "2", "--per-point", "1", "--agent-wait", "60")
+        seen: list[str] = []
+        _read_until(host, "step  2/", seen)
+        stack.kill_agent()
+        _read_until(host, "waiting for the agent", seen)
+        assert any("aborted (agent_lost)" in line for line in seen)
+        stack.start_agent()
+        _read_until(host, "answers again", seen)
+        rest, _ = host.communicate(timeout=120)
+        assert host.returncode == 0, rest
+    index = load_index(out)
+    assert [t["trial"] for t in index["trials"]] == [0, 1]
+    assert [a["status"] for a in index["aborted"]] == ["agent_lost"]
+
+
+def test_that_kill_9_of_the_host_at_random_moments_loses_no_written_step(tmp_path: Path) -> None:
+    rng = random.Random(7)
+    out = tmp_path / "set"
+    with TwinStack(tmp_path, XI3, seed=5) as stack:
+        _connected_client(stack).close()
+        for attempt in range(4):
+            host = _host(stack, out, "--points", "1", "--per-point", "3", "--print-writes")
+            assert host.stdout is not None
+            written: list[int] = []
+            current = None
+            started = None
+            while True:
+                line = host.stdout.readline()
+                if not line:
+                    break
+                if line.startswith("trial "):
+                    current, written = int(line.split()[1].split("/")[0]) - 1, []
+                elif line.startswith("@written"):
+                    written.append(int(line.split()[1]))
+                    started = started or time.monotonic()
+                if started and time.monotonic() - started > rng.uniform(0.5, 6.0):
+                    break
+            host.send_signal(signal.SIGKILL)
+            rest, _ = host.communicate()
+            written += [int(ln.split()[1]) for ln in rest.splitlines() if ln.startswith("@written")]
+            assert current is not None
+            path = out / f"trial-{current:04d}.mcap"
+            if path.exists():  # killed mid-trial (else between trials: nothing open)
+                got = {m.sequence for m in read_trial(path).messages}
+                assert set(written) <= got, f"attempt {attempt}: lost {sorted(set(written) - got)[:5]}"
+            for entry in load_index(out)["trials"]:  # finished trials are untouched
+                assert read_trial(out / entry["file"]).complete
+        finish = _host(stack, out, "--points", "1", "--per-point", "3")
+        rest, _ = finish.communicate(timeout=180)
+        assert finish.returncode == 0, rest
+    index = load_index(out)
+    assert sorted(t["trial"] for t in index["trials"]) == [0, 1, 2]
+    assert all(a["status"] == "host_crashed" for a in index["aborted"])
