@@ -20,8 +20,8 @@ import pytest
 from tumblebot.host.controller import Controller, ControllerConfig
 from tumblebot.host.link import AgentClient, load_host_key
 from tumblebot.host.mocap import open_source
-from tumblebot.host.trials import TwinPlacer, load_index
 from tumblebot.host.triallog import read_trial
+from tumblebot.host.trials import TwinPlacer, load_index
 from tumblebot.host.twin import TwinStack
 from tumblebot.sim.design import Design
 
@@ -106,8 +106,9 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral_within_one_second(
 
 
 def _host(stack: TwinStack, out: Path, *extra: str) -> subprocess.Popen[str]:
-    cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--design", "0.292,0.129,0.098,0.136",
-           "--setpoint", "0.4,-0.3", "--steps", "6", "--period", "0.5", *stack.host_args(), *extra]
+    cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--design",
+           "0.292,0.129,0.098,0.136", "--setpoint", "0.4,-0.3", "--steps", "6", "--period", "0.5",
+           *stack.host_args(), *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV,
                             stdin=subprocess.DEVNULL)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import socket
@@ -76,7 +77,7 @@ def test_that_the_motioncapture_adapter_reads_the_librarys_own_mock_source() -> 
         assert poses[0].position == pytest.approx((1.0, 2.0, 0.1))
         assert poses[0].quaternion == pytest.approx((0.5, 0.5, 0.5, 0.5))
         assert [p.seq for p in poses] == sorted(p.seq for p in poses)
-        assert all(b.t > a.t for a, b in zip(poses, poses[1:], strict=False))
+        assert all(b.t > a.t for a, b in itertools.pairwise(poses))
     finally:
         src.close()
 
