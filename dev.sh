@@ -68,11 +68,11 @@ case "$cmd" in
             --episodes 48 --slice-points 5 --workers 2
         ;;
     setup)
-        ensure_venv "train,opt,dev,agent"
+        ensure_venv "train,opt,host,dev,agent"
         ;;
     test)
         apt_install $FIRMWARE_PACKAGES postgresql
-        ensure_venv "train,opt,dev,agent"
+        ensure_venv "train,opt,host,dev,agent"
         shift
         echo "dev.sh: firmware build (Debian avr-gcc)"
         make -s -C firmware/arduino
@@ -89,7 +89,7 @@ case "$cmd" in
         "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n '2,10p' "$0"
+        sed -n "2,12p" "$0"
         exit 2
         ;;
 esac

@@ -58,6 +58,8 @@ class TrialResult:
     final_position: tuple[float, float, float] | None = None
     final_error: float | None = None  #: planar distance to the setpoint at the end, m
     latencies_ms: list[float] = field(default_factory=list)
+    #: per decision: (pose arrival, pose source timestamp, command sent), monotonic s
+    decision_times: list[tuple[float, float | None, float]] = field(default_factory=list)
     stop_latency: float | None = None  #: s from the cause of an abort to the STOP datagram
 
     def to_json(self) -> dict[str, Any]:
@@ -162,6 +164,7 @@ class Controller:
             end = start + cfg.steps * cfg.period
             last_sent = -1e9
             latencies: list[float] = []
+            times: list[tuple[float, float | None, float]] = []
             fresh: Pose | None = None
             while True:
                 now = time.monotonic()
@@ -177,6 +180,7 @@ class Controller:
                     last_sent = self.agent.command(*self.command)
                     latency = (last_sent - fresh.t) * 1e3
                     latencies.append(latency)
+                    times.append((fresh.t, fresh.source_time, last_sent))
                     if log is not None:
                         log.write("/decision", {"step": decisions, "observation": [float(v) for v in obs],
                                                 "command": list(self.command), "distance": self.distance(fresh),
@@ -191,7 +195,7 @@ class Controller:
                     assert final is not None
                     stop_sent = self.stop_robot(log, "end of trial")
                     result = TrialResult(COMPLETE, "all decisions made", decisions, final.position,
-                                         self.distance(final), latencies, stop_sent - now)
+                                         self.distance(final), latencies, times, stop_sent - now)
                     event("end", f"final error {result.final_error:.3f} m")
                     return result
                 if self.filter.lost(now):

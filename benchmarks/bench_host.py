@@ -1,0 +1,101 @@
+"""Host latency: from a mocap frame arriving to the command datagram leaving.
+
+Run: ``.venv/bin/python benchmarks/bench_host.py [--decisions 2000]``
+
+A publisher process sends the UDP pose stream at 200 Hz, stamping each datagram with
+``time.monotonic()`` as it leaves (same machine, same clock); the real controller, with
+the bundled nav-flat ONNX policy, decides on every 4th frame (period 20 ms instead of 1 s,
+so thousands of decisions fit in a minute) and sends each command to the real Pi agent
+(its own process, as on the Pi; serial on pyserial's ``loop://``). Two latencies per
+decision:
+
+* frame sent → command sent: includes the loopback UDP hop and the select() wake-up;
+* frame read by the host → command sent: our own code (filter, task frame, ONNX, HMAC).
+
+Side by side in the same run, the bare ONNX inference time of the same observations gives
+the share of the latency that is the policy. Target (issue #6): p99 ≤ 2 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.link import AgentClient, load_host_key, new_key
+from tumblebot.host.mocap import open_source
+from tumblebot.host.twin import free_port
+from tumblebot.sim.policy import OnnxPolicy, bundled_policy
+
+PUBLISHER = """
+import socket, sys, time
+from tumblebot.host.mocap import encode_pose_datagram
+from tumblebot.sim.frames import yaw_quaternion
+port, seq = int(sys.argv[1]), 0
+with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+    while True:
+        seq += 1
+        s.sendto(encode_pose_datagram("tumbler", seq, time.monotonic(), (0.8, -0.4, 0.05),
+                                      yaw_quaternion(0.3 + 1e-4 * seq)), ("127.0.0.1", port))
+        time.sleep(0.005)
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--decisions", type=int, default=2000)
+    args = ap.parse_args()
+    source = open_source("udp://127.0.0.1:0?body=tumbler")
+    port = source.address[1]  # type: ignore[attr-defined]
+    with tempfile.TemporaryDirectory() as tmp:
+        key = Path(tmp) / "key"
+        new_key(key)
+        agent_port = free_port()
+        config = Path(tmp) / "agent.toml"
+        config.write_text(f'serial_port = "loop://"\nbind_address = "127.0.0.1"\nbind_port = {agent_port}\n'
+                          f'allowed_host = "127.0.0.1"\nkey_file = "{key}"\n')
+        procs = [subprocess.Popen([sys.executable, "-c", PUBLISHER, str(port)]),
+                 subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(config)],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        try:
+            policy = OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")
+            client = AgentClient(("127.0.0.1", agent_port), load_host_key(key))
+            deadline = time.monotonic() + 30
+            while not client.poll():  # the agent process is up
+                assert time.monotonic() < deadline, "the agent did not start"
+                client.request_telemetry()
+                time.sleep(0.2)
+            controller = Controller(source, client, policy, (0.0, 0.0), 0.0,
+                                    ControllerConfig(period=0.02, steps=args.decisions, agent_timeout=5.0,
+                                                     first_pose_timeout=20.0))
+            result = controller.run_trial()
+        finally:
+            for proc in procs:
+                proc.terminate()
+                proc.wait()
+    assert result.status == "complete", result.reason
+    sent = np.array([(s - src) * 1e3 for _, src, s in result.decision_times if src is not None])
+    read = np.array(result.latencies_ms)
+    obs = np.array([controller.observation(controller.filter.last)] * 2000)  # type: ignore[arg-type]
+    t0 = time.perf_counter()
+    for o in obs:
+        policy.act(o)
+    onnx_ms = (time.perf_counter() - t0) / len(obs) * 1e3
+    print(f"{platform.node()} ({platform.machine()}), {len(read)} decisions, {time.strftime('%Y-%m-%d')}")
+    for name, x in (("frame sent -> command sent", sent), ("frame read -> command sent", read)):
+        print(f"{name:28s} p50 {np.percentile(x, 50):.3f} ms   p99 {np.percentile(x, 99):.3f} ms   "
+              f"max {x.max():.3f} ms")
+    print(f"ONNX inference alone         mean {onnx_ms:.3f} ms  "
+          f"(= {onnx_ms / np.percentile(read, 50):.0%} of the median host latency)")
+    print(f"target p99 <= 2 ms: {'met' if np.percentile(sent, 99) <= 2.0 else 'NOT met'}")
+
+
+if __name__ == "__main__":
+    main()
