@@ -14,8 +14,22 @@ from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
 from tumblebot.sim.gaits import GAITS
 
 XI3_ROBOT = Design(0.292, 0.129, 0.098, 0.136)
-#: The random design of the model cards: drawn once from the bounds with seed 2021.
-RANDOM_DESIGN = Design.sample(np.random.default_rng(2021))
+
+
+def _first_tumbling_draw(seed: int) -> Design:
+    """The first design drawn uniformly from the bounds with ``seed`` whose legs can lift
+    the body (``l >= r``). The very first draw of seed 2021, (0.273, 0.241, 0.153, 0.125),
+    cannot tumble at all, so every controller scores the same there and the card's
+    comparison would say nothing about the policy."""
+    rng = np.random.default_rng(seed)
+    while True:
+        design = Design.sample(rng)
+        if design.can_tumble:
+            return design
+
+
+#: The random design of the model cards: (0.258, 0.107, 0.113, 0.155).
+RANDOM_DESIGN = _first_tumbling_draw(2021)
 FIXED_GAITS = [g for g in GAITS if g != "random"]
 
 
