@@ -52,11 +52,17 @@ def _trial_run(args: argparse.Namespace) -> int:
         raise TumblebotError(str(exc)) from None
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
                      design, args.seed, config)
-    plan = open_trial_set(args.out, plan)
-    key = load_host_key(args.key)
-    agent = AgentClient(parse_address(args.agent), key)
+    key = load_host_key(args.key)  # everything is checked before the trial set is created or touched
+    address = parse_address(args.agent)
+    twin = parse_address(args.twin) if args.twin else None
     source = open_source(args.mocap)
-    placer = TwinPlacer(parse_address(args.twin)) if args.twin else OperatorPlacer(source)
+    try:
+        plan = open_trial_set(args.out, plan)
+    except BaseException:
+        source.close()
+        raise
+    agent = AgentClient(address, key)
+    placer = TwinPlacer(twin) if twin else OperatorPlacer(source)
     controller = Controller(source, agent, policy, plan.setpoint, plan.heading, config)
 
     def on_logged(seq: int) -> None:

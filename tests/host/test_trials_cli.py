@@ -1,0 +1,102 @@
+"""``tumblebot trial run`` / ``analyze`` as an operator uses them (mock mocap, the real agent
+as a process with its serial port on pyserial's loop://)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tumblebot.host.link import AgentClient, load_host_key, new_key
+from tumblebot.host.trials import load_index
+from tumblebot.host.twin import free_port
+
+
+def tb(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
+
+
+@pytest.fixture
+def agent(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    key = tmp_path / "agent.key"
+    new_key(key)
+    port = free_port()
+    config = tmp_path / "agent.toml"
+    config.write_text(f'serial_port = "loop://"\nbind_address = "127.0.0.1"\nbind_port = {port}\n'
+                      f'allowed_host = "127.0.0.1"\nkey_file = "{key}"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(config)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    client = AgentClient(("127.0.0.1", port), load_host_key(key))
+    deadline = time.monotonic() + 30
+    while not client.poll():
+        assert time.monotonic() < deadline, "agent did not start"
+        client.request_telemetry()
+        time.sleep(0.2)
+    client.close()
+    try:
+        yield f"127.0.0.1:{port}", key
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+
+
+def run_args(out: Path, address: str, key: Path, *extra: str) -> list[str]:
+    return ["trial", "run", "--out", str(out), "--mocap", "mock://?x=1.5&y=0", "--agent", address, "--key", str(key),
+            "--design", "0.292,0.129,0.098,0.136", "--points", "1", "--per-point", "2", "--steps", "3",
+            "--period", "0.2", *extra]
+
+
+@pytest.mark.slow
+def test_that_an_operator_trial_set_runs_records_and_analyses(tmp_path: Path, agent: tuple[str, Path]) -> None:
+    address, key = agent
+    out = tmp_path / "set"
+    run = tb(*run_args(out, address, key))
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "place the robot at (+1.50, +0.00)" in run.stdout and "trial set complete: 2 trials" in run.stdout
+    index = load_index(out)
+    assert [t["final_error"] for t in index["trials"]] == pytest.approx([1.5, 1.5], abs=1e-6)
+    again = tb(*run_args(out, address, key))  # nothing left: resuming a finished set does nothing
+    assert again.returncode == 0 and "trial 1/2" not in again.stdout
+    changed = tb(*run_args(out, address, key, "--radius", "1.0"))
+    assert changed.returncode == 2 and "different trial set" in changed.stderr
+    analysis = tb("trial", "analyze", str(out), "--baseline-mean", "0.433", "--baseline-sd", "0.2",
+                  "--baseline-n", "100", "--json")
+    assert analysis.returncode == 0, analysis.stderr
+    result = json.loads(analysis.stdout)
+    assert result["n"] == 2 and result["mean_error"] == pytest.approx(1.5) and result["baseline"]["p"] < 0.01
+    assert result["e"] == pytest.approx(5.19, abs=0.05)
+    base = tb("trial", "analyze", str(out), "--baseline", str(out), "--json")
+    assert json.loads(base.stdout)["baseline"]["n"] == 2
+
+
+def test_that_bad_trial_input_gets_one_clear_error(tmp_path: Path) -> None:
+    loose = tmp_path / "loose.key"
+    loose.write_bytes(bytes(32))
+    loose.chmod(0o644)
+    key = tmp_path / "k"
+    new_key(key)
+    out = tmp_path / "s"
+    cases = [
+        (run_args(out, "127.0.0.1:47800", loose), "readable by others"),
+        (run_args(out, "127.0.0.1:notaport", key), "not a number"),
+        (run_args(out, "127.0.0.1:47800", key, "--radius", "-1"), "--radius"),
+        (run_args(out, "127.0.0.1:47800", key, "--design", "0.1,0.1,0.1,0.1"), "outside its bound"),
+        (run_args(out, "127.0.0.1:47800", key, "--policy", "nope.onnx"), "does not exist"),
+        (run_args(out, "127.0.0.1:47800", key, "--setpoint", "1"), "two numbers"),
+        (run_args(out, "127.0.0.1:47800", key, "--period", "0"), "period"),
+    ]
+    for args, message in cases:
+        run = tb(*args, timeout=60)
+        assert run.returncode == 2, (args, run.stderr)
+        assert message in run.stderr and "Traceback" not in run.stderr, (args, run.stderr)
+    assert not out.exists()  # nothing was created by a refused command
+    missing = tb("trial", "analyze", str(tmp_path / "nothing"))
+    assert missing.returncode == 2 and "not a trial set" in missing.stderr
+    partial = tb("trial", "analyze", str(tmp_path), "--baseline-mean", "0.4")
+    assert partial.returncode == 2 and "--baseline-sd" in partial.stderr
