@@ -212,10 +212,6 @@ class Recipe:
                        final_promotions=min(3, trials))
         raise OptimizeError(f"--recipe {name!r} must be standard, thesis or efficient")
 
-    @property
-    def episodes_per_trial(self) -> int:
-        return self.screen_batch
-
 
 @dataclass
 class StudyConfig:
