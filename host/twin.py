@@ -262,7 +262,7 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
 
 
 # ----------------------------------------------------------------------------- consistency
-def simulate_starts(folder: Path, episodes_per_trial: int = 16, workers: int = 1) -> dict[str, Any]:
+def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any]:
     """Pure-simulation final errors from the trial set's own start points and headings.
 
     For each finished trial: the same start point and yaw, expressed in the task frame,
