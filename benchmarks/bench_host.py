@@ -31,6 +31,7 @@ import numpy as np
 from tumblebot.host.controller import Controller, ControllerConfig
 from tumblebot.host.link import AgentClient, load_host_key, new_key
 from tumblebot.host.mocap import open_source
+from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
 from tumblebot.host.twin import free_port
 from tumblebot.sim.policy import OnnxPolicy, bundled_policy
 
@@ -75,26 +76,37 @@ def main() -> None:
             controller = Controller(source, client, policy, (0.0, 0.0), 0.0,
                                     ControllerConfig(period=0.02, steps=args.decisions, agent_timeout=5.0,
                                                      first_pose_timeout=20.0))
-            result = controller.run_trial()
+            results = {}
+            for label in ("no log", "MCAP log"):  # side by side: what the crash-safe log costs
+                if label == "no log":
+                    results[label] = controller.run_trial()
+                else:
+                    with TrialLogWriter(Path(tmp) / "trial.mcap") as log:
+                        background = BackgroundLog(log)  # as tumblebot trial run does
+                        results[label] = controller.run_trial(background)
+                        background.close()
         finally:
             for proc in procs:
                 proc.terminate()
                 proc.wait()
-    assert result.status == "complete", result.reason
-    sent = np.array([(s - src) * 1e3 for _, src, s in result.decision_times if src is not None])
-    read = np.array(result.latencies_ms)
     obs = np.array([controller.observation(controller.filter.last)] * 2000)  # type: ignore[arg-type]
     t0 = time.perf_counter()
     for o in obs:
         policy.act(o)
     onnx_ms = (time.perf_counter() - t0) / len(obs) * 1e3
-    print(f"{platform.node()} ({platform.machine()}), {len(read)} decisions, {time.strftime('%Y-%m-%d')}")
-    for name, x in (("frame sent -> command sent", sent), ("frame read -> command sent", read)):
-        print(f"{name:28s} p50 {np.percentile(x, 50):.3f} ms   p99 {np.percentile(x, 99):.3f} ms   "
-              f"max {x.max():.3f} ms")
-    print(f"ONNX inference alone         mean {onnx_ms:.3f} ms  "
-          f"(= {onnx_ms / np.percentile(read, 50):.0%} of the median host latency)")
-    print(f"target p99 <= 2 ms: {'met' if np.percentile(sent, 99) <= 2.0 else 'NOT met'}")
+    print(f"{platform.node()} ({platform.machine()}), {args.decisions} decisions per run, {time.strftime('%Y-%m-%d')}")
+    p99 = {}
+    for label, result in results.items():
+        assert result.status == "complete", result.reason
+        sent = np.array([(s - src) * 1e3 for _, src, s in result.decision_times if src is not None])
+        read = np.array(result.latencies_ms)
+        p99[label] = float(np.percentile(sent, 99))
+        for name, x in (("frame sent -> command sent", sent), ("frame read -> command sent", read)):
+            print(f"{label:8s} {name:28s} p50 {np.percentile(x, 50):.3f} ms   p99 {np.percentile(x, 99):.3f} ms   "
+                  f"max {x.max():.3f} ms")
+    print(f"ONNX inference alone: mean {onnx_ms:.3f} ms; p99 with the log / without: "
+          f"{p99['MCAP log'] / p99['no log']:.2f}")
+    print(f"target p99 <= 2 ms (with the log): {'met' if p99['MCAP log'] <= 2.0 else 'NOT met'}")
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ import numpy as np
 
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import Pose, PoseFilter, PoseSource
-from tumblebot.host.triallog import TrialLogWriter
+from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
 from tumblebot.sim.frames import to_task_frame
 
 COMPLETE = "complete"
@@ -95,14 +95,13 @@ class Controller:
     def distance(self, pose: Pose) -> float:
         return math.hypot(pose.position[0] - self.setpoint[0], pose.position[1] - self.setpoint[1])
 
-    def pump(self, timeout: float, log: TrialLogWriter | None) -> list[Pose]:
-        """Read the source; accepted poses are logged and returned."""
-        accepted = []
-        for pose in self.source.poll(timeout):
-            if self.filter.offer(pose):
-                accepted.append(pose)
-                if log is not None:
-                    log.write("/pose", pose.to_json())
+    def pump(self, timeout: float, log: TrialLogWriter | BackgroundLog | None, defer_log: bool = False) -> list[Pose]:
+        """Read the source; accepted poses are returned, and logged unless ``defer_log``
+        (the trial loop decides first and logs after the command has left)."""
+        accepted = [pose for pose in self.source.poll(timeout) if self.filter.offer(pose)]
+        if log is not None and not defer_log:
+            for pose in accepted:
+                log.write("/pose", pose.to_json())
         return accepted
 
     def drain(self) -> int:
@@ -114,7 +113,7 @@ class Controller:
                 return n
             n += len(poses)
 
-    def wait_for_tracking(self, timeout: float, log: TrialLogWriter | None = None) -> Pose | None:
+    def wait_for_tracking(self, timeout: float, log: TrialLogWriter | BackgroundLog | None = None) -> Pose | None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self.pump(0.05, log)
@@ -122,7 +121,7 @@ class Controller:
                 return self.filter.last
         return None
 
-    def stop_robot(self, log: TrialLogWriter | None, why: str) -> float:
+    def stop_robot(self, log: TrialLogWriter | BackgroundLog | None, why: str) -> float:
         self.command = (0, 0)
         sent = self.agent.stop()
         if log is not None:
@@ -130,7 +129,7 @@ class Controller:
         return sent
 
     # ------------------------------------------------------------------ a trial
-    def run_trial(self, log: TrialLogWriter | None = None,
+    def run_trial(self, log: TrialLogWriter | BackgroundLog | None = None,
                   on_status: Callable[[int, Pose | None, float], None] | None = None) -> TrialResult:
         """One trial. Always leaves the robot stopped (STOP is sent in ``finally``)."""
         cfg = self.config
@@ -169,9 +168,11 @@ class Controller:
             while True:
                 now = time.monotonic()
                 timeout = min(0.02, max(0.0, next_decision - now)) if decisions < cfg.steps else 0.02
-                for pose in self.pump(timeout, log):
-                    fresh = pose
+                arrived = self.pump(timeout, log, defer_log=True)
+                if arrived:
+                    fresh = arrived[-1]
                 now = time.monotonic()
+                decision: dict[str, Any] | None = None
                 if decisions < cfg.steps and fresh is not None and fresh.t >= next_decision - 1e-3 \
                         and now >= next_decision - 1e-3:
                     obs = self.observation(fresh)
@@ -181,15 +182,18 @@ class Controller:
                     latency = (last_sent - fresh.t) * 1e3
                     latencies.append(latency)
                     times.append((fresh.t, fresh.source_time, last_sent))
-                    if log is not None:
-                        log.write("/decision", {"step": decisions, "observation": [float(v) for v in obs],
-                                                "command": list(self.command), "distance": self.distance(fresh),
-                                                "latency_ms": latency})
-                        log.write("/command", {"right": self.command[0], "left": self.command[1], "kind": "policy"})
+                    decision = {"step": decisions, "observation": [float(v) for v in obs],
+                                "command": list(self.command), "distance": self.distance(fresh), "latency_ms": latency}
                     decisions += 1
                     next_decision = start + decisions * cfg.period
-                    if on_status is not None:
-                        on_status(decisions, fresh, self.distance(fresh))
+                if log is not None:  # after the command has left: logging never delays a decision
+                    for pose in arrived:
+                        log.write("/pose", pose.to_json())
+                    if decision is not None:
+                        log.write("/decision", decision)
+                        log.write("/command", {"right": self.command[0], "left": self.command[1], "kind": "policy"})
+                if decision is not None and on_status is not None and fresh is not None:
+                    on_status(decisions, fresh, self.distance(fresh))
                 if decisions >= cfg.steps and now >= end:
                     final = self.filter.last
                     assert final is not None

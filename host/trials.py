@@ -30,7 +30,7 @@ import numpy as np
 from tumblebot.errors import TumblebotError
 from tumblebot.host.controller import COMPLETE, Controller, ControllerConfig, TrialResult
 from tumblebot.host.mocap import PoseSource
-from tumblebot.host.triallog import TrialLogWriter, read_trial, write_json_atomic
+from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.design import Design
 
 PLAN_VERSION = 1
@@ -38,6 +38,12 @@ PLAN_VERSION = 1
 
 class TrialError(TumblebotError):
     """A trial set that cannot be run or analysed as asked."""
+
+
+def say(message: str) -> None:
+    """One line to stdout in one write (the log thread may print ``@written`` lines too)."""
+    sys.stdout.write(message + "\n")
+    sys.stdout.flush()
 
 
 @dataclass(frozen=True)
@@ -127,7 +133,7 @@ class OperatorPlacer(Placer):
     """Guides a person: where to put the robot, and its live distance to that spot."""
 
     def __init__(self, source: PoseSource, tolerance: float = 0.10, settle: float = 1.0,
-                 out: Callable[[str], None] = print) -> None:
+                 out: Callable[[str], None] = say) -> None:
         self.source, self.tolerance, self.settle, self.out = source, tolerance, settle, out
 
     def place(self, trial: int, point: tuple[float, float], yaw: float) -> None:
@@ -170,7 +176,7 @@ class TwinPlacer(Placer):
 
 # ----------------------------------------------------------------------------- running
 def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer: Placer,
-                  out: Callable[[str], None] = print, agent_wait: float = 300.0,
+                  out: Callable[[str], None] = say, agent_wait: float = 300.0,
                   on_logged: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run every unfinished trial of the set. Returns the index."""
     index = load_index(folder)
@@ -190,11 +196,15 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer:
                                         "setpoint": json.dumps(plan.setpoint), "design": json.dumps(plan.design),
                                         "policy_sha256": plan.policy_sha256}, on_written=on_logged)
             result: TrialResult | None = None
+            background = BackgroundLog(log)  # the controller never waits for the disk
             try:
-                result = controller.run_trial(log, on_status=lambda n, pose, d: out(
+                result = controller.run_trial(background, on_status=lambda n, pose, d: out(
                     f"  step {n:2d}/{controller.config.steps}: {d:.2f} m to the setpoint"))
             finally:
-                log.finish()
+                try:
+                    background.close()
+                finally:
+                    log.finish()
                 if result is None or result.status != COMPLETE:
                     _set_aside(folder, index, trial, path, result.status if result else "interrupted",
                                result.reason if result else "stopped (Ctrl-C or an error)")
