@@ -73,7 +73,13 @@ def main() -> None:
     ap.add_argument("--final-episodes", type=int, default=240)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/optimize.json"))
+    ap.add_argument("--reanalyze", action="store_true",
+                    help="re-evaluate the final designs recorded in --json (no optimisation) and print paired and "
+                         "Welch tests")
     args = ap.parse_args()
+    if args.reanalyze:
+        reanalyze(args)
+        return
 
     objective = Objective({args.task: 1.0}, args.xi)
     thesis = Recipe("thesis-scaled", args.designs, args.batch, args.designs // 2, args.batch)
@@ -123,6 +129,35 @@ def main() -> None:
     args.json.write_text(json.dumps(out, indent=2, default=lambda o: None if isinstance(o, float) and
                                     not math.isfinite(o) else str(o)) + "\n")
     print(f"wrote {args.json}")
+
+
+def reanalyze(args: argparse.Namespace) -> None:
+    """Fresh evaluation of recorded final designs: paired (CRN) and Welch t-tests."""
+    from scipy import stats
+
+    from tumblebot.sim.design import Design
+
+    data = json.loads(args.json.read_text())
+    objective = Objective({args.task: 1.0}, args.xi)
+    with EpisodeRunner({args.task: bundled_policy(args.task)}, workers=args.workers) as runner:
+        rows = []
+        for r in data["rows"]:
+            scores = {}
+            for name in ("thesis", "efficient"):
+                w = Design(*r[name]["design"])
+                R = runner.run(w, [args.task], 0, args.final_episodes, 20_000 + r["seed"])
+                scores[name] = objective.per_episode(R, energy_per_metre(w))
+            paired = paired_p(scores["efficient"], scores["thesis"])
+            welch = float(stats.ttest_ind(scores["efficient"], scores["thesis"], equal_var=False).pvalue)
+            rows.append((r["seed"], r["thesis"]["episodes"], r["efficient"]["episodes"], scores, paired, welch))
+    print("seed  thesis-scaled (episodes, objective)  efficient (episodes, objective)  paired p  Welch p")
+    for seed, te, ee, sc, paired, welch in rows:
+        print(f"{seed:>4}  {te:>8} {np.mean(sc['thesis']):.5f}               {ee:>6} {np.mean(sc['efficient']):.5f}"
+              f"                {paired:.3g}   {welch:.3g}")
+    data["reanalysis"] = [{"seed": seed, "thesis_objective": float(np.mean(sc["thesis"])),
+                           "efficient_objective": float(np.mean(sc["efficient"])), "paired_p": paired,
+                           "welch_p": welch} for seed, _, _, sc, paired, welch in rows]
+    args.json.write_text(json.dumps(data, indent=2) + "\n")
 
 
 if __name__ == "__main__":

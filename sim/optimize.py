@@ -478,18 +478,51 @@ def _evaluate(objective: Objective, runner: EpisodeRunner | None, design: Design
     return {t: r.tolist() for t, r in R.items()}, e, objective.per_episode(R, e)
 
 
-def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
-             seed: int) -> int:
-    """Extend the best not-yet-promoted screened trial to the full batch. Returns episodes run."""
+#: Kernel width of the screening smoother, as a fraction of each parameter's range.
+SMOOTHING_WIDTH = 0.08
+
+
+def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]:
+    """Screened trials ranked without trusting any single small batch.
+
+    Only ``R`` is noisy; ``e(w)`` is exact. So each task's mean ``R`` is smoothed over
+    neighbouring designs (a Gaussian kernel, :data:`SMOOTHING_WIDTH` of each range, each
+    trial weighted by its episodes), and the objective is recomputed from the smoothed
+    ``R`` and the design's exact ``e``. A lucky 4-episode batch then no longer wins a
+    promotion on its own: it needs neighbours that agree.
+    """
     from optuna.trial import TrialState
 
+    trials = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+              if t.value is not None and not _is_infeasible(t) and t.user_attrs.get("R")]
+    if not trials:
+        return {}
+    span = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
+    X = np.array([[t.params[n] for n in PARAMETERS] for t in trials]) / span
+    d2 = ((X[:, None, :] - X[None, :, :]) ** 2).sum(-1)
+    K = np.exp(-d2 / (2 * SMOOTHING_WIDTH ** 2))
+    scores: dict[int, float] = {}
+    for task in objective.tasks:
+        n = np.array([len(t.user_attrs["R"][task]) for t in trials], dtype=float)
+        mean = np.array([float(np.mean(t.user_attrs["R"][task])) for t in trials])
+        smooth = (K * n) @ mean / (K @ n)
+        for t, r in zip(trials, smooth, strict=True):
+            e = float(t.user_attrs["e"])
+            scores[t.number] = scores.get(t.number, 0.0) + objective.weights[task] * wrap_reward(
+                float(r), e, objective.xi, objective.variant)
+    return scores
+
+
+def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
+             seed: int) -> int:
+    """Extend the most promising not-yet-promoted screened trial (by :func:`screen_scores`)
+    to the full batch. Returns episodes run."""
     done = promotions(study)
     pending = {int(k[len("promoting:"):]) for k, v in study.user_attrs.items() if k.startswith("promoting:") and v}
-    screened = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-                if t.number not in done and t.number not in pending and t.value is not None and not _is_infeasible(t)]
-    if not screened:
+    scores = {n: v for n, v in screen_scores(study, objective).items() if n not in done and n not in pending}
+    if not scores:
         return 0
-    t = max(screened, key=lambda tr: tr.value if tr.value is not None else -math.inf)
+    t = study.trials[max(scores, key=lambda n: scores[n])]
     study.set_user_attr(f"promoting:{t.number}", True)
     design = trial_design(t)
     try:
@@ -558,7 +591,7 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         progress()
     if objective.tasks:
         for _ in range(recipe.final_promotions):
-            if _top_is_promoted(study, recipe.final_promotions) or not affordable(promotion):
+            if _top_is_promoted(study, objective, recipe.final_promotions) or not affordable(promotion):
                 break
             episodes += _promote(study, objective, recipe, runner, seed)
     return progress()
@@ -601,15 +634,12 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
     return value, added
 
 
-def _top_is_promoted(study: optuna.Study, top: int) -> bool:
-    """Whether the ``top`` best screened designs all have their full-batch results."""
-    from optuna.trial import TrialState
-
+def _top_is_promoted(study: optuna.Study, objective: Objective, top: int) -> bool:
+    """Whether the ``top`` most promising screened designs all have full-batch results."""
     done = promotions(study)
-    complete = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-                if t.value is not None and not _is_infeasible(t)]
-    complete.sort(key=lambda t: t.value if t.value is not None else -math.inf, reverse=True)
-    return all(t.number in done for t in complete[:top])
+    scores = screen_scores(study, objective)
+    ranked = sorted(scores, key=lambda n: scores[n], reverse=True)
+    return all(n in done for n in ranked[:top])
 
 
 def study_summary(study: optuna.Study) -> dict[str, Any]:

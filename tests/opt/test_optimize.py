@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import optuna
 import pytest
 
@@ -26,6 +27,7 @@ from tumblebot.sim.optimize import (
     parse_tasks,
     parse_xi,
     promotions,
+    screen_scores,
 )
 
 
@@ -76,6 +78,22 @@ def test_that_the_objective_is_the_thesis_wrapper_summed_over_weighted_tasks() -
     per = obj.per_episode({"nav-flat": np.array([0.5, 1.0]), "incline": np.array([0.2, 0.4])}, e=4.0)
     assert per == pytest.approx([0.5 / 5 + 0.5 * 0.2 / 5, 1.0 / 5 + 0.5 * 0.4 / 5])
     assert Objective({"nav-flat": 1.0}, math.inf).tasks == []
+
+
+def test_that_screen_scores_smooth_only_the_noisy_part(tmp_path: Path) -> None:
+    """A lucky batch among bad neighbours is pulled down; e(w) stays exact."""
+    study = optuna.create_study(direction="maximize", storage=f"sqlite:///{tmp_path / 'k.db'}")
+    dist = {n: optuna.distributions.FloatDistribution(*b) for n, b in
+            {"x": (0.189, 0.3), "y": (0.102, 0.25), "z": (0.084, 0.2), "l": (0.066, 0.25)}.items()}
+    for i, (l, R) in enumerate([(0.150, [0.2] * 4), (0.152, [0.2] * 4), (0.154, [0.9] * 4), (0.240, [0.6] * 4)]):
+        params = {"x": 0.2, "y": 0.11, "z": 0.09, "l": l}
+        t = optuna.trial.create_trial(params=params, distributions=dist, value=float(np.mean(R)),
+                                      user_attrs={"R": {"nav-flat": R}, "e": 4.0 + i * 0.01})
+        study.add_trial(t)
+    scores = screen_scores(study, Objective({"nav-flat": 1.0}, 0.0))
+    assert scores[2] < 0.5 < scores[3]  # the lone 0.9 has two 0.2 neighbours; the 0.6 stands alone
+    xi1 = screen_scores(study, Objective({"nav-flat": 1.0}, 1.0))
+    assert xi1[3] == pytest.approx(scores[3] / 5.03)
 
 
 def test_that_start_up_designs_depend_on_the_trial_number_not_the_process() -> None:
@@ -170,8 +188,10 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
         assert p["R"]["nav-flat"][:4] == study.trials[number].user_attrs["R"]["nav-flat"]
     best = best_candidate(study)
     assert best is not None and best.batch == 60 and best.trial in promoted
-    top = max((t for t in screened), key=lambda t: t.value)
-    assert top.number in promoted  # the best screened design got its full batch before the end
+    scores = screen_scores(study, Objective({"nav-flat": 1.0}, 3.0))
+    assert set(scores) == {t.number for t in screened}
+    top = max(scores, key=lambda n: scores[n])
+    assert top in promoted  # the most promising screened design got its full batch before the end
 
 
 # ------------------------------------------------------------------ bad input
