@@ -549,7 +549,10 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     """
     import optuna
 
-    sampler = make_sampler(recipe, seed, process_salt=(len(study.trials) << 20) ^ os.getpid())
+    # Seeded by the study's size at start: a rerun is reproducible, and workers joining a
+    # study later get other seeds (workers started together differ through qLogEI, which
+    # conditions on each other's running trials).
+    sampler = make_sampler(recipe, seed, process_salt=len(study.trials))
     study.sampler = sampler
     distributions: dict[str, optuna.distributions.BaseDistribution] = {
         n: optuna.distributions.FloatDistribution(*BOUNDS[n]) for n in PARAMETERS}
