@@ -85,8 +85,8 @@ def test_that_screen_scores_smooth_only_the_noisy_part(tmp_path: Path) -> None:
     study = optuna.create_study(direction="maximize", storage=f"sqlite:///{tmp_path / 'k.db'}")
     dist = {n: optuna.distributions.FloatDistribution(*b) for n, b in
             {"x": (0.189, 0.3), "y": (0.102, 0.25), "z": (0.084, 0.2), "l": (0.066, 0.25)}.items()}
-    for i, (l, R) in enumerate([(0.150, [0.2] * 4), (0.152, [0.2] * 4), (0.154, [0.9] * 4), (0.240, [0.6] * 4)]):
-        params = {"x": 0.2, "y": 0.11, "z": 0.09, "l": l}
+    for i, (leg, R) in enumerate([(0.150, [0.2] * 4), (0.152, [0.2] * 4), (0.154, [0.9] * 4), (0.240, [0.6] * 4)]):
+        params = {"x": 0.2, "y": 0.11, "z": 0.09, "l": leg}
         t = optuna.trial.create_trial(params=params, distributions=dist, value=float(np.mean(R)),
                                       user_attrs={"R": {"nav-flat": R}, "e": 4.0 + i * 0.01})
         study.add_trial(t)
