@@ -271,8 +271,9 @@ def open_storage(url: str) -> Any:
         except Exception as exc:  # SQLAlchemy raises many types; all mean "cannot open"
             text = str(exc)
             # Workers started together on an empty database race to create the schema; the
-            # loser sees a duplicate-key error and finds the tables on its next try.
-            if attempt < 4 and ("duplicate key" in text or "already exists" in text):
+            # loser sees a duplicate-key (PostgreSQL) or UNIQUE-constraint (SQLite, on
+            # alembic_version) error and finds the tables on its next try.
+            if attempt < 4 and any(m in text for m in ("duplicate key", "already exists", "UNIQUE constraint")):
                 time.sleep(0.5 + attempt)
                 continue
             first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
