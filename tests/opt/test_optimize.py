@@ -302,3 +302,23 @@ def test_that_two_worker_processes_cooperate_on_one_postgresql_study(postgres_ur
     for run in _two_workers(postgres_url, "shared-pg", 16):
         assert run.returncode == 0, run.stderr
     _check_cooperation(optuna.load_study(study_name="shared-pg", storage=postgres_url), 16)
+
+
+@pytest.mark.slow
+def test_that_the_report_checks_the_universal_optimum_across_tasks(tmp_path: Path) -> None:
+    storage = f"sqlite:///{tmp_path / 'u.db'}"
+    for task in ("nav-flat", "distance-flat"):
+        run = tb("optimize", "--tasks", task, "--xi", "0", "--trials", "4", "--batch", "2", "--storage", storage,
+                 "--study", task, "--quiet")
+        assert run.returncode == 0, run.stderr
+    out = tmp_path / "rep"
+    rep = tb("report", "--storage", storage, "--study", "nav-flat", "--study", "distance-flat", "-o", str(out),
+             "--episodes", "2", "--slice-points", "2", "--quiet")
+    assert rep.returncode == 0, rep.stderr
+    uni = json.loads((out / "report.json").read_text())["universal"]
+    assert uni["checked"] and set(uni["matrix"]) == {"nav-flat", "distance-flat"}
+    for task, row in uni["matrix"].items():  # each task's own optimum is the reference of its row
+        assert row[task]["p_vs_own_optimum"] is None
+        assert all(c["p_vs_own_optimum"] is not None for o, c in row.items() if o != task)
+    assert "statistically the same robot" in (out / "report.md").read_text() or "not the same robot" in \
+        (out / "report.md").read_text()
