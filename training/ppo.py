@@ -65,8 +65,10 @@ def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
 class RunCallback(BaseCallback):
     """Progress bar, episode CSV, and periodic atomic checkpoints."""
 
-    def __init__(self, run_dir: Path, config: TrainConfig, start_steps: int, wall_offset: float = 0.0) -> None:
+    def __init__(self, run_dir: Path, config: TrainConfig, start_steps: int, wall_offset: float = 0.0,
+                 stop: StopRequest | None = None) -> None:
         super().__init__()
+        self.stop = stop
         self.run_dir = run_dir
         self.config = config
         self.next_checkpoint = (start_steps // config.checkpoint_every + 1) * config.checkpoint_every
@@ -96,7 +98,7 @@ class RunCallback(BaseCallback):
         if steps >= self.next_checkpoint:
             self.save()
             self.next_checkpoint += self.config.checkpoint_every
-        return True
+        return self.stop is None or self.stop.signum is None
 
     def save(self) -> None:
         self.csv_file.flush()
@@ -143,9 +145,23 @@ def _trim_csv(path: Path, max_steps: int) -> float:
     return float(kept[-1][3]) if len(kept) > 1 else 0.0
 
 
-def _terminate(signum: int, frame: object) -> None:
-    """SIGTERM stops training like Ctrl-C: checkpoint, then exit."""
-    raise KeyboardInterrupt
+class StopRequest:
+    """Ctrl-C and SIGTERM ask training to stop at the next environment step.
+
+    Raising ``KeyboardInterrupt`` from the signal handler could land in the middle of the
+    trainer's pipe exchange with its ``SubprocVecEnv`` workers; ``close()`` then waited
+    for a reply that had already been read, and the process hung (1 run in 4 in a test).
+    So the handler only records the signal; :class:`RunCallback` returns ``False`` on the
+    next step and SB3 leaves ``learn()`` cleanly. A second signal stops at once.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
 
 
 def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
@@ -195,14 +211,18 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         env = build_vec_env(config, seed=config.seed)
         model = new_model(config, env, run_dir)
         start, wall_offset = 0, 0.0
-    callback = RunCallback(run_dir, config, start, wall_offset)
-    previous_term = signal.signal(signal.SIGTERM, _terminate)  # `kill`, systemd, batch schedulers
+    stop = StopRequest()
+    callback = RunCallback(run_dir, config, start, wall_offset, stop)
+    previous_term = signal.signal(signal.SIGTERM, stop)  # `kill`, systemd, batch schedulers
+    previous_int = signal.signal(signal.SIGINT, stop)
     try:
         remaining = config.total_steps - start
         if remaining > 0:
             model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
                         tb_log_name="ppo")
         callback.save()
+        if stop.signum is not None:
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         callback.save()
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved. Continue with: "
@@ -210,6 +230,7 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         raise
     finally:
         signal.signal(signal.SIGTERM, previous_term)
+        signal.signal(signal.SIGINT, previous_int)
         callback.close()
         env.close()
     from tumblebot.training.curves import plot_learning_curve
