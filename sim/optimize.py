@@ -39,10 +39,12 @@ import contextlib
 import json
 import math
 import os
+import signal
 import socket
+import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -582,11 +584,15 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
             optuna.storages.fail_stale_trials(study)  # trials of killed workers: failed, redone
         if counted_trials(study) >= recipe.trials or not affordable(recipe.screen_batch * n_tasks, reserve):
             break
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _sigint_deferred():  # Ctrl-C inside ask() would strand a RUNNING trial
             warnings.filterwarnings("ignore", message="Heartbeat of storage")  # we run the heartbeat ourselves
             trial = study.ask(distributions)
-        with get_heartbeat_thread(trial._trial_id, study._storage):
-            value, added = _run_trial(study, trial, objective, recipe, runner, seed)
+        try:
+            with get_heartbeat_thread(trial._trial_id, study._storage):
+                value, added = _run_trial(study, trial, objective, recipe, runner, seed)
+        except BaseException:
+            _mark_interrupted(study, trial)
+            raise
         episodes += added
         last_value, last_state = value, "complete" if value is not None else "infeasible"
         if recipe.promote_every and objective.tasks and trial.number >= recipe.startup \
@@ -599,6 +605,30 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
                 break
             episodes += _promote(study, objective, recipe, runner, seed)
     return progress()
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold Ctrl-C back until the block is done (it is delivered right after)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _mark_interrupted(study: optuna.Study, trial: optuna.Trial) -> None:
+    """A trial this process left unfinished (Ctrl-C, a crash): failed and flagged, so it is
+    redone, unless it was already told."""
+    from optuna.trial import TrialState
+
+    with _sigint_deferred(), contextlib.suppress(Exception):
+        if study._storage.get_trial(trial._trial_id).state == TrialState.RUNNING:
+            trial.set_user_attr("interrupted", True)
+            study.tell(trial, state=TrialState.FAIL)
 
 
 def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, recipe: Recipe,
