@@ -31,6 +31,9 @@ class TrainConfig:
             ``n_steps`` is per environment.
         net_arch: hidden layer sizes of the policy and value MLPs (separate networks).
         state_weight, progress_weight: the environment's reward shaping.
+        init_from: checkpoint whose policy and value weights started this run (a warm
+            start from another task's run, ``tumblebot train --init-from``), or None.
+        init_from_steps: training steps that checkpoint had already taken.
     """
 
     task: str = "nav-flat"
@@ -51,6 +54,8 @@ class TrainConfig:
     net_arch: list[int] = field(default_factory=lambda: [128, 128])
     state_weight: float = 1.0
     progress_weight: float = 5.0
+    init_from: str | None = None
+    init_from_steps: int = 0
 
     def __post_init__(self) -> None:
         from tumblebot.sim.tasks import get_task

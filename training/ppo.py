@@ -177,11 +177,31 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
                tensorboard_log=str(run_dir / "tb"), seed=config.seed, device="cpu", verbose=0)
 
 
+def warm_start(model: PPO, checkpoint: Path) -> int:
+    """Copy the policy and value weights of ``checkpoint`` into ``model``; returns the
+    steps that checkpoint had trained. The networks must have the same shape, which holds
+    for any two tasks (they share the observation and action layout) with equal ``net_arch``."""
+    if not checkpoint.is_file():
+        raise TrainingError(f"--init-from: {checkpoint} does not exist")
+    try:
+        source = PPO.load(checkpoint, device="cpu")
+    except Exception as exc:  # a zip that SB3 cannot read: corrupt, truncated or not SB3
+        raise TrainingError(f"--init-from: {checkpoint} is not a readable PPO checkpoint ({exc})") from None
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0]
+        raise TrainingError(f"--init-from: {checkpoint} has other network shapes than this run "
+                            f"(net_arch must match): {first}") from None
+    return int(source.num_timesteps)
+
+
 def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total_steps: int | None = None) -> Path:
     """Train (or resume) a run in ``run_dir``; returns the path of the final checkpoint.
 
     With ``resume``, the config is read from ``run_dir/config.json`` (``total_steps`` may
-    extend it) and training continues from ``latest.zip``.
+    extend it) and training continues from ``latest.zip``. A new run whose config names
+    ``init_from`` starts from that checkpoint's weights (a warm start; steps count from 0).
     """
     torch.set_num_threads(1)
     config_path = run_dir / "config.json"
@@ -197,8 +217,9 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
             raise TrainingError("a new run needs a training config")
         if (run_dir / "latest.zip").exists():
             raise TrainingError(f"{run_dir} already holds a run; pass --resume to continue it")
+        if config.init_from is not None and not Path(config.init_from).is_file():
+            raise TrainingError(f"--init-from: {config.init_from} does not exist")
         run_dir.mkdir(parents=True, exist_ok=True)
-        config_path.write_text(config.to_json())
 
     if resume:
         model = PPO.load(run_dir / "latest.zip", device="cpu")
@@ -210,6 +231,13 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
     else:
         env = build_vec_env(config, seed=config.seed)
         model = new_model(config, env, run_dir)
+        if config.init_from is not None:
+            try:
+                config.init_from_steps = warm_start(model, Path(config.init_from))
+            except TrainingError:
+                env.close()
+                raise
+        config_path.write_text(config.to_json())
         start, wall_offset = 0, 0.0
     stop = StopRequest()
     callback = RunCallback(run_dir, config, start, wall_offset, stop)

@@ -104,6 +104,8 @@ def _train(args: argparse.Namespace) -> int:
     if args.resume:
         if run_dir is None:
             raise TumblebotError("--resume needs --run-dir RUN (the folder of the run to continue)")
+        if args.init_from is not None:
+            raise TumblebotError("--init-from starts a new run; a resumed run keeps its own weights")
         from tumblebot.training.ppo import train
 
         final = train(None, run_dir, resume=True, total_steps=args.steps)
@@ -114,7 +116,9 @@ def _train(args: argparse.Namespace) -> int:
     from tumblebot.training.ppo import train
 
     overrides = {k: v for k, v in (("total_steps", args.steps), ("n_envs", args.envs), ("seed", args.seed),
-                                   ("checkpoint_every", args.checkpoint_every)) if v is not None}
+                                   ("checkpoint_every", args.checkpoint_every),
+                                   ("init_from", None if args.init_from is None else str(args.init_from)))
+                 if v is not None}
     base = TrainConfig.load(args.config).__dict__ if args.config is not None else {}
     config = TrainConfig.from_dict({**base, "task": task.name, **overrides})
     if run_dir is None:
@@ -373,6 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="JSON file of TrainConfig fields")
     p.add_argument("--run-dir", type=Path, default=None, help="run folder (default runs/TASK-TIMESTAMP)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint")
+    p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
+                   help="start a new run from the weights of another run's checkpoint (e.g. "
+                        "runs/distance-flat/latest.zip for incline); the networks must match")
     p.set_defaults(func=_train)
 
     p = sub.add_parser("export", help="export a trained run to ONNX with a model card (and evaluate it)",

@@ -154,6 +154,9 @@ def test_that_a_run_killed_mid_training_resumes_from_its_last_checkpoint(tmp_pat
     (["evaluate", "--task", "swim", "--design", XI3], "unknown task 'swim'"),
     (["evaluate", "--task", "nav-flat", "--design", XI3, "--policy", "missing.onnx"], "does not exist"),
     (["train", "--resume"], "--resume needs --run-dir"),
+    (["train", "--resume", "--run-dir", "r", "--init-from", "x.zip"], "--init-from starts a new run"),
+    (["train", "--task", "incline", "--run-dir", "runs/never-made", "--init-from", "no-such.zip"],
+     "does not exist"),
     (["export", "no-such-run", "-o", "x.onnx"], "no checkpoint"),
 ])
 def test_that_bad_training_and_evaluation_input_is_one_clear_error(args: list[str], message: str) -> None:
@@ -162,6 +165,7 @@ def test_that_bad_training_and_evaluation_input_is_one_clear_error(args: list[st
     assert result.returncode == 2
     lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and message in lines[0], result.stderr
+    assert not Path("runs/never-made").exists()  # a refused run leaves nothing behind
 
 
 def test_that_a_corrupt_policy_file_is_refused(tiny_policy: Path, tmp_path: Path) -> None:
@@ -188,6 +192,34 @@ def test_that_evaluation_and_policies_do_not_import_torch() -> None:
     code = ("import sys, tumblebot.sim.evaluate, tumblebot.sim.policy, tumblebot.cli; "
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_that_a_warm_started_run_begins_from_the_other_runs_weights(tiny_run: Path, tmp_path: Path) -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    from tumblebot.training.ppo import build_vec_env, new_model, train, warm_start
+
+    source = PPO.load(tiny_run / "latest.zip", device="cpu")
+    config = TrainConfig(task="incline", total_steps=64, n_envs=1, n_steps=64, batch_size=64, n_epochs=1,
+                         net_arch=[16, 16], init_from=str(tiny_run / "latest.zip"))
+    env = build_vec_env(config, seed=0)
+    try:
+        model = new_model(config, env, tmp_path)
+        assert warm_start(model, tiny_run / "latest.zip") == source.num_timesteps
+        mine, theirs = model.policy.state_dict(), source.policy.state_dict()
+        assert mine.keys() == theirs.keys()
+        assert all(torch.equal(mine[k], theirs[k]) for k in mine)
+        wider = new_model(TrainConfig(task="incline", net_arch=[32, 32]), env, tmp_path)
+        with pytest.raises(TrainingError, match="net_arch must match"):
+            warm_start(wider, tiny_run / "latest.zip")
+    finally:
+        env.close()
+    run = tmp_path / "incline"
+    train(config, run)
+    saved = json.loads((run / "config.json").read_text())
+    assert saved["init_from"] == str(tiny_run / "latest.zip")
+    assert saved["init_from_steps"] == source.num_timesteps
 
 
 def test_that_bad_training_configs_are_rejected() -> None:
