@@ -32,6 +32,7 @@ from tumblebot.host.controller import COMPLETE, Controller, ControllerConfig, Tr
 from tumblebot.host.mocap import PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.design import Design
+from tumblebot.sim.stats import mean_ci95
 
 PLAN_VERSION = 1
 
@@ -287,15 +288,6 @@ def summarize(folder: Path) -> SetSummary:
     return SetSummary(folder, plan, errors, points, energy_per_metre(Design(*plan.design)))
 
 
-def _ci(x: np.ndarray) -> tuple[float, float]:
-    from scipy import stats
-
-    if len(x) < 2:
-        return (float(x.mean()), float(x.mean()))
-    half = float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
-    return (float(x.mean()) - half, float(x.mean()) + half)
-
-
 def analyze(folder: Path, baseline: Path | None = None, baseline_stats: tuple[float, float, int] | None = None,
             plot: Path | None = None) -> dict[str, Any]:
     """Setpoint error per start point and overall, and a Welch t-test against a baseline."""
@@ -305,12 +297,12 @@ def analyze(folder: Path, baseline: Path | None = None, baseline_stats: tuple[fl
     out: dict[str, Any] = {"folder": str(folder), "design": s.plan.design, "e": s.e if math.isfinite(s.e) else None,
                            "n": len(s.errors), "mean_error": float(s.errors.mean()),
                            "sd_error": float(s.errors.std(ddof=1)) if len(s.errors) > 1 else 0.0,
-                           "ci95": _ci(s.errors), "per_point": []}
+                           "ci95": mean_ci95(s.errors), "per_point": []}
     for k in range(s.plan.points):
         e = s.errors[s.points == k]
         if len(e):
             out["per_point"].append({"point": k, "start": s.plan.start_point(k), "n": len(e),
-                                     "mean_error": float(e.mean()), "ci95": _ci(e)})
+                                     "mean_error": float(e.mean()), "ci95": mean_ci95(e)})
     if baseline is not None and baseline_stats is not None:
         raise TrialError("give --baseline DIR or the --baseline-mean/--baseline-sd/--baseline-n numbers, not both")
     if baseline is not None:

@@ -23,6 +23,7 @@ from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.stats import mean_ci95
 from tumblebot.sim.tasks import get_task
 
 
@@ -69,13 +70,7 @@ class EvalResult:
     @property
     def ci95(self) -> tuple[float, float]:
         """Two-sided 95 % t interval of the mean final-state R."""
-        from scipy import stats
-
-        n = len(self.R)
-        if n < 2:
-            return (self.mean_R, self.mean_R)
-        half = float(stats.t.ppf(0.975, n - 1) * np.std(self.R, ddof=1) / math.sqrt(n))
-        return (self.mean_R - half, self.mean_R + half)
+        return mean_ci95(self.R)
 
     def summary(self, xi: float | None = None) -> dict[str, Any]:
         from tumblebot.sim.objective import wrap_reward

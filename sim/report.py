@@ -31,6 +31,7 @@ from tumblebot.sim.optimize import (
     open_storage,
 )
 from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.stats import mean_ci95
 
 #: Thesis Table 3.1 (nav-flat): ξ → (x, y, z, l, R, e).
 THESIS_TABLE_31: dict[str, tuple[float, float, float, float, float, float]] = {
@@ -61,13 +62,7 @@ class Evaluated:
         return float(np.mean(self.R[task]))
 
     def ci(self, task: str) -> tuple[float, float]:
-        from scipy import stats
-
-        r = self.R[task]
-        if len(r) < 2:
-            return (float(r[0]), float(r[0]))
-        half = float(stats.t.ppf(0.975, len(r) - 1) * np.std(r, ddof=1) / math.sqrt(len(r)))
-        return (float(np.mean(r)) - half, float(np.mean(r)) + half)
+        return mean_ci95(self.R[task])
 
 
 def paired_p(a: np.ndarray, b: np.ndarray) -> float | None:
