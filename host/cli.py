@@ -23,7 +23,7 @@ def _xy(text: str) -> tuple[float, float]:
     return x, y
 
 
-def _policy_path(name: str, task: str) -> Path:
+def _policy_path(name: str) -> Path:
     from tumblebot.sim.policy import PolicyError, bundled_policy
 
     path = bundled_policy(name) if not name.endswith(".onnx") else Path(name)
@@ -43,7 +43,7 @@ def _trial_run(args: argparse.Namespace) -> int:
 
     design = Design.parse(args.design)
     task = "nav-flat"
-    policy_path = _policy_path(args.policy, task)
+    policy_path = _policy_path(args.policy)
     policy = OnnxPolicy(policy_path, task=task)
     try:
         config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,

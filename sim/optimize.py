@@ -644,15 +644,9 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
                                           "cannot lift the body past its balance point")
         study.tell(trial, _imputed_value(study))
         return None, 0
-    try:
-        started = time.perf_counter()
-        R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed)
-    except BaseException:
-        # Ctrl-C or a crash mid-trial: recorded as interrupted, not counted, redone later.
-        with contextlib.suppress(Exception):
-            trial.set_user_attr("interrupted", True)
-            study.tell(trial, state=TrialState.FAIL)
-        raise
+    # Ctrl-C or a crash from here on: optimize() fails the trial and flags it interrupted.
+    started = time.perf_counter()
+    R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed)
     value = float(np.mean(per_episode))
     trial.set_user_attr("e", e)
     trial.set_user_attr("batch", recipe.screen_batch if objective.tasks else 0)
