@@ -70,6 +70,10 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not value > 0:
                 raise TrainingError(f"training config {name}={value!r} must be a positive number")
+        if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
+            raise TrainingError(f"training config init_from={self.init_from!r} must be a checkpoint path or null")
+        if not isinstance(self.init_from_steps, int) or self.init_from_steps < 0:
+            raise TrainingError(f"training config init_from_steps={self.init_from_steps!r} must be >= 0")
         if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
             raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
 

@@ -225,6 +225,8 @@ def test_that_a_warm_started_run_begins_from_the_other_runs_weights(tiny_run: Pa
 def test_that_bad_training_configs_are_rejected() -> None:
     with pytest.raises(TrainingError, match="n_steps"):
         TrainConfig(n_steps=0)
+    with pytest.raises(TrainingError, match="init_from=3"):
+        TrainConfig(init_from=3)  # type: ignore[arg-type]
     with pytest.raises(TrainingError, match="unknown training config keys: lr"):
         TrainConfig.from_dict({"lr": 1})
 
