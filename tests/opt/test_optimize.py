@@ -203,7 +203,6 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     (["--batch", "0"], "--batch 0"),
     (["--trials", "0"], "--trials 0"),
     (["--xi", "-1"], "--xi"),
-    (["--tasks", "incline=1"], "no bundled policy"),
     (["--storage", "sqlite:////no/such/folder/x.db"], "does not exist"),
     (["--storage", "nosuchdb://x"], "cannot be opened"),
     (["--storage", "just-a-file.db"], "not a database URL"),
@@ -217,6 +216,17 @@ def test_that_bad_optimize_input_gets_one_clear_error(tmp_path: Path, args: list
     assert run.returncode == 2
     assert message in run.stderr and "Traceback" not in run.stderr
     assert len([ln for ln in run.stderr.splitlines() if ln.startswith("tumblebot: error")]) == 1
+
+
+def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # All four tasks ship a policy now, so point the lookup at an empty folder.
+    import tumblebot.sim.policy as policy
+    from tumblebot.sim.optimize import bundled_policies
+    from tumblebot.sim.policy import PolicyError
+
+    monkeypatch.setattr(policy, "bundled_policy", lambda task: tmp_path / f"{task}.onnx")
+    with pytest.raises(PolicyError, match="no bundled policy for incline yet"):
+        bundled_policies(["incline"])
 
 
 def test_that_a_study_made_for_another_objective_is_refused_and_left_untouched(tmp_path: Path) -> None:
