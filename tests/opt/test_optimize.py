@@ -218,15 +218,19 @@ def test_that_bad_optimize_input_gets_one_clear_error(tmp_path: Path, args: list
     assert len([ln for ln in run.stderr.splitlines() if ln.startswith("tumblebot: error")]) == 1
 
 
-def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    # All four tasks ship a policy now, so point the lookup at an empty folder.
+def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    # All four tasks ship a policy now, so point the lookup at an empty folder (in-process).
     import tumblebot.sim.policy as policy
-    from tumblebot.sim.optimize import bundled_policies
-    from tumblebot.sim.policy import PolicyError
+    from tumblebot.cli import main
 
     monkeypatch.setattr(policy, "bundled_policy", lambda task: tmp_path / f"{task}.onnx")
-    with pytest.raises(PolicyError, match="no bundled policy for incline yet"):
-        bundled_policies(["incline"])
+    code = main(["optimize", "--tasks", "incline=1", "--xi", "3", "--trials", "3", "--batch", "2",
+                 "--storage", f"sqlite:///{tmp_path / 'b.db'}", "--study", "b", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "no bundled policy" in err and "Traceback" not in err
+    assert len([ln for ln in err.splitlines() if ln.startswith("tumblebot: error")]) == 1
 
 
 def test_that_a_study_made_for_another_objective_is_refused_and_left_untouched(tmp_path: Path) -> None:
