@@ -181,11 +181,9 @@ def warm_start(model: PPO, checkpoint: Path) -> int:
     """Copy the policy and value weights of ``checkpoint`` into ``model``; returns the
     steps that checkpoint had trained. The networks must have the same shape, which holds
     for any two tasks (they share the observation and action layout) with equal ``net_arch``."""
-    if not checkpoint.is_file():
-        raise TrainingError(f"--init-from: {checkpoint} does not exist")
     try:
         source = PPO.load(checkpoint, device="cpu")
-    except Exception as exc:  # a zip that SB3 cannot read: corrupt, truncated or not SB3
+    except Exception as exc:  # missing, corrupt, truncated or not SB3 (train() checks existence first)
         raise TrainingError(f"--init-from: {checkpoint} is not a readable PPO checkpoint ({exc})") from None
     try:
         model.policy.load_state_dict(source.policy.state_dict())
@@ -248,9 +246,9 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         if remaining > 0:
             model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
                         tb_log_name="ppo")
-        callback.save()
         if stop.signum is not None:
             raise KeyboardInterrupt
+        callback.save()
     except KeyboardInterrupt:
         callback.save()
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved. Continue with: "
