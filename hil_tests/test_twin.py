@@ -185,4 +185,4 @@ def test_that_kill_9_of_the_host_at_random_moments_loses_no_written_step(tmp_pat
         assert finish.returncode == 0, rest
     index = load_index(out)
     assert sorted(t["trial"] for t in index["trials"]) == [0, 1, 2]
-    assert all(a["status"] == "host_crashed" for a in index["aborted"])
+    assert all(a["status"] == "host_crashed" for a in index["aborted"]), index["aborted"]

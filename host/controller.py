@@ -152,6 +152,8 @@ class Controller:
             self.agent.request_telemetry()
             deadline = time.monotonic() + cfg.agent_timeout
             while not self.agent.poll():
+                if time.monotonic() - self.agent.last_request_at >= cfg.telemetry_every:
+                    self.agent.request_telemetry()  # a request lost on the network is not a lost agent
                 if time.monotonic() > deadline:
                     result = TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
                                          f" did not answer within {cfg.agent_timeout:.1f} s", 0)

@@ -1,8 +1,10 @@
 """The host's end of the UDP link to the Pi agent (docs/protocol.md, "UDP link").
 
 Authenticated COMMAND and STOP datagrams out, TELEMETRY_REQUEST out and TELEMETRY back.
-The epoch is the host's wall-clock second at start and the counter rises by one per
-datagram, so the agent accepts a restarted host and refuses replays.
+The epoch is the host's wall-clock second at start and the counter starts at the
+nanosecond within that second, then rises by one per datagram. The agent accepts a
+restarted host (a later second, or later in the same second than any datagram the old
+one could have sent) and refuses replays.
 """
 
 from __future__ import annotations
@@ -60,8 +62,11 @@ class AgentClient:
 
     def __init__(self, address: tuple[str, int], key: bytes, sender: int = 1) -> None:
         self.address, self.key, self.sender = address, key, sender
-        self.epoch = int(time.time())
-        self.counter = 0
+        now = time.time_ns()
+        self.epoch = now // 1_000_000_000
+        # A host restarted within the same second starts above anything the old one sent
+        # (it cannot have sent more than one datagram per nanosecond).
+        self.counter = now % 1_000_000_000
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("0.0.0.0", 0))
         self.sock.setblocking(False)

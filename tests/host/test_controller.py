@@ -4,6 +4,7 @@ UDP pose stream: decisions, frames, and every way a trial stops the robot."""
 from __future__ import annotations
 
 import math
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -183,3 +184,23 @@ def test_that_duplicate_and_late_frames_do_not_make_extra_decisions(lab: Lab) ->
     result = lab.controller(policy).run_trial()
     assert result.status == "complete" and len(policy.seen) == 5
     assert all(abs(o[0]) < 2 for o in policy.seen)  # never decided on the replayed (5, 5) frames
+
+
+def test_that_a_host_restarted_within_the_same_second_is_not_refused_as_a_replay() -> None:
+    from tumblebot.pi_agent import protocol as P
+
+    key = b"k" * 32
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.settimeout(2)
+    guard = P.ReplayGuard()
+    try:
+        for _ in range(3):  # three host processes in quick succession, each sending a burst
+            client = AgentClient(receiver.getsockname(), key)
+            for _ in range(50):
+                client.stop()
+            for _ in range(50):
+                assert guard.check(P.decode_datagram(receiver.recv(P.MAX_DATAGRAM), key)) is None
+            client.close()
+    finally:
+        receiver.close()
