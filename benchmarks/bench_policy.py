@@ -52,20 +52,28 @@ def latency(run: Path, policy: OnnxPolicy, n: int) -> None:
 def throughput(policy: OnnxPolicy, episodes: int) -> None:
     env = TumblerEnv(task="nav-flat", design=Design(0.292, 0.129, 0.098, 0.136),
                      randomization=Randomization(design=False))
-    t_eval, t_raw = [], []
+    t_eval, t_raw, t_reset, t_infer = [], [], [], []
     for i in range(episodes):
         start = time.perf_counter()
         obs, _ = env.reset(seed=i)
+        t_reset.append(time.perf_counter() - start)
+        infer = 0.0
         for _ in range(env.episode_steps):
-            obs, *_ = env.step(policy.act(obs))
+            t0 = time.perf_counter()
+            action = policy.act(obs)
+            infer += time.perf_counter() - t0
+            obs, *_ = env.step(action)
         t_eval.append(time.perf_counter() - start)
+        t_infer.append(infer)
         t_raw.append(time_raw_episode(env, i, motor_update=True))
     env.close()
     e, r = statistics.median(t_eval), statistics.median(t_raw)
     print(f"\nnav-flat evaluation, medians of {episodes} episodes (interleaved)")
     print(f"  policy episodes  {e * 1e3:7.1f} ms  ({1 / e:.2f} episodes/s per core)")
-    print(f"  bare stepping    {r * 1e3:7.1f} ms")
+    print(f"  bare stepping    {r * 1e3:7.1f} ms  (the same scenes and settling, motors set each substep)")
     print(f"  overhead         {100 * (e / r - 1):+.1f} %")
+    print(f"  of which: reset (scene rebuild + settling) {statistics.median(t_reset) * 1e3:.1f} ms, "
+          f"ONNX inference {statistics.median(t_infer) * 1e3:.2f} ms per episode")
 
 
 def main() -> None:

@@ -26,7 +26,10 @@ plus ``hold_torque`` (gearbox friction and the servo's neutral-band braking).
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -58,6 +61,19 @@ def _rel(rng: np.random.Generator, sigma: float, size: int | None = None) -> Any
     """``1 + N(0, σ)`` clipped to ±3σ; always consumes the same number of draws."""
     draw = rng.standard_normal(size)
     return 1.0 + sigma * np.clip(draw, -3.0, 3.0)
+
+
+@dataclass(frozen=True)
+class EnvSnapshot:
+    """What :meth:`TumblerEnv.snapshot` saves (the physics itself stays in the server)."""
+
+    state_id: int
+    motor_rng_state: Mapping[str, Any]
+    command: np.ndarray
+    speed: np.ndarray
+    step: int
+    potential: float
+    substep_count: int
 
 
 class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -287,6 +303,31 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             info["final_R"] = r_state
             info["final_position"] = position
         return self._observation(position, orientation), float(reward), False, truncated, info
+
+    # ------------------------------------------------- snapshots (planning, analysis)
+    def snapshot(self) -> EnvSnapshot:
+        """The whole simulation state mid-episode: physics, motor noise stream, command,
+        step count. :meth:`restore` goes back to it, so the same future (the same noise
+        and latency draws) can be tried with different actions. Free it with
+        :meth:`release`; snapshots live in the physics server's memory."""
+        if self._scene is None:
+            raise SimError("call reset() before snapshot()")
+        state_id = self._p.saveState(physicsClientId=self._client)
+        return EnvSnapshot(state_id, copy.deepcopy(self._motor_rng.bit_generator.state), self._command.copy(),
+                           self._speed.copy(), self._step, self._potential, self._substep_count)
+
+    def restore(self, snap: EnvSnapshot) -> np.ndarray:
+        """Return to ``snap`` (of this episode); returns the observation there."""
+        self._p.restoreState(stateId=snap.state_id, physicsClientId=self._client)
+        self._motor_rng.bit_generator.state = dict(copy.deepcopy(snap.motor_rng_state))
+        self._command, self._speed = snap.command.copy(), snap.speed.copy()
+        self._step, self._potential, self._substep_count = snap.step, snap.potential, snap.substep_count
+        self._set_motors(self._command)  # motor settings are not part of the saved physics state
+        position, _, orientation = self._state()
+        return self._observation(position, orientation)
+
+    def release(self, snap: EnvSnapshot) -> None:
+        self._p.removeState(snap.state_id, physicsClientId=self._client)
 
     # ------------------------------------------- continuous driving (the digital twin)
     def set_leg_commands(self, right: float, left: float) -> None:

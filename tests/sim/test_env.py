@@ -90,6 +90,29 @@ def test_that_reusing_an_env_does_not_change_an_episode() -> None:
         env.close()
 
 
+@pytest.mark.parametrize("motor_model", ["dc", "velocity"])
+def test_that_restoring_a_snapshot_replays_the_same_future(motor_model: str) -> None:
+    env = TumblerEnv(task="incline", motor_model=motor_model)
+    try:
+        env.reset(seed=5)
+        for a in [(2, 2), (2, 1), (1, 1)]:
+            env.step(np.array(a))
+        snap = env.snapshot()
+        actions = [(2, 2), (0, 2), (2, 2), (1, 1), (2, 0)]
+        first = [env.step(np.array(a)) for a in actions]
+        env.restore(snap)
+        env.step(np.array((0, 0)))  # a different branch in between changes nothing
+        env.step(np.array((2, 0)))
+        observation = env.restore(snap)
+        env.release(snap)
+        again = [env.step(np.array(a)) for a in actions]
+        assert np.array_equal(observation[7:], np.array([0.0, 0.0], dtype=np.float32))  # the command at the snapshot
+        for (o1, r1, *_), (o2, r2, *_) in zip(first, again, strict=True):
+            assert np.array_equal(o1, o2) and r1 == r2
+    finally:
+        env.close()
+
+
 def test_that_episodes_with_the_same_seed_share_their_randomness_across_designs() -> None:
     env = TumblerEnv(task="nav-flat")
     try:
