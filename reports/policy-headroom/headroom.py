@@ -117,7 +117,8 @@ def main() -> None:
         # The gain a controller needs over the gait for Welch's one-sided p < 0.01 with 240
         # episodes each, at this spread: z(0.99) · sd · sqrt(2 / 240).
         "gain_needed_for_the_card_bar": float(2.326 * base.std(ddof=1) * np.sqrt(2 / 240)),
-        "per_episode": [{"episode": r[0], "base_R": r[1], "planner_R": r[2], "deviations": [[step, list(a)] for step, a in r[3]]} for r in rows],
+        "per_episode": [{"episode": r[0], "base_R": r[1], "planner_R": r[2],
+                         "deviations": [[step, list(a)] for step, a in r[3]]} for r in rows],
     }
     print(f"{args.task} on {design}: {args.base} {result['base_mean_R']:.3f}, clairvoyant one-step planner "
           f"{result['planner_mean_R']:.3f} (gain {result['gain_mean']:+.3f}, 95 % CI "
