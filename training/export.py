@@ -10,7 +10,9 @@ i.e. the arg-max of each motor's logits, exactly what SB3's
 from __future__ import annotations
 
 import json
+import logging
 import os
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -43,8 +45,17 @@ class DeterministicActor(nn.Module):
         return torch.argmax(logits.reshape(-1, len(self.nvec), self.nvec[0]), dim=-1)
 
 
+def run_folder(run: Path) -> Path | None:
+    """The run folder (the one holding ``config.json``) of ``RUN`` or of a checkpoint in it.
+
+    A checkpoint is ``RUN/latest.zip`` or ``RUN/checkpoints/step_N.zip``.
+    """
+    candidates = [run] if run.is_dir() else [run.parent, run.parent.parent]
+    return next((c for c in candidates if (c / "config.json").is_file()), None)
+
+
 def load_run(run: Path) -> tuple[PPO, TrainConfig | None, Path]:
-    """Load ``RUN/latest.zip`` (or a checkpoint .zip given directly)."""
+    """Load ``RUN/latest.zip`` (or a checkpoint .zip given directly) and the run's config."""
     checkpoint = run / "latest.zip" if run.is_dir() else run
     if not checkpoint.is_file():
         raise TrainingError(f"no checkpoint at {checkpoint}")
@@ -52,9 +63,21 @@ def load_run(run: Path) -> tuple[PPO, TrainConfig | None, Path]:
         model = PPO.load(checkpoint, device="cpu")
     except Exception as exc:  # SB3 raises many types for a bad zip
         raise TrainingError(f"cannot load checkpoint {checkpoint}: {exc}") from None
-    config_file = (run if run.is_dir() else run.parent) / "config.json"
-    config = TrainConfig.load(config_file) if config_file.is_file() else None
+    folder = run_folder(run)
+    config = TrainConfig.load(folder / "config.json") if folder is not None else None
     return model, config, checkpoint
+
+
+def wall_seconds_at(run: Path, steps: int) -> float | None:
+    """Training wall time when the run reached ``steps``, from its ``episodes.csv``."""
+    folder = run_folder(run)
+    if folder is None or not (folder / "episodes.csv").is_file():
+        return None
+    import csv
+
+    with (folder / "episodes.csv").open() as fh:
+        rows = [r for r in csv.DictReader(fh) if int(r["steps"]) <= steps]
+    return float(rows[-1]["wall_seconds"]) if rows else None
 
 
 def export_onnx(model: PPO, path: Path) -> None:
@@ -63,7 +86,11 @@ def export_onnx(model: PPO, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     batch = torch.export.Dim("batch", min=1)
-    with torch.no_grad():
+    # The exporter logs that torchvision (not a dependency) is absent and warns about its
+    # own deprecated internals; neither concerns the user.
+    logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=FutureWarning)
         torch.onnx.export(actor, (example,), str(tmp), input_names=["obs"], output_names=["action"],
                           dynamic_shapes={"obs": {0: batch}}, external_data=False, dynamo=True,
                           verbose=False)

@@ -133,21 +133,20 @@ def _train(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     from tumblebot.sim.tasks import get_task
-    from tumblebot.training.export import export_onnx, load_run, write_card
+    from tumblebot.training.export import export_onnx, load_run, wall_seconds_at, write_card
 
     if args.output.suffix != ".onnx":
         raise TumblebotError(f"-o {args.output}: the output must end in .onnx")
     model, config, checkpoint = load_run(args.run)
+    if not args.task and config is None:
+        raise TumblebotError(f"cannot tell the task of {checkpoint}: no config.json in its run folder; "
+                             "pass --task")
     task = get_task(args.task or (config.task if config else ""))
     export_onnx(model, args.output)
     extra: dict[str, object] = {"checkpoint": str(checkpoint)}
-    if config is not None and (args.run / "episodes.csv").is_file():
-        import csv
-
-        with (args.run / "episodes.csv").open() as fh:
-            rows = list(csv.DictReader(fh))
-        if rows:
-            extra["training_wall_seconds"] = float(rows[-1]["wall_seconds"])
+    wall = wall_seconds_at(args.run, int(model.num_timesteps))
+    if wall is not None:
+        extra["training_wall_seconds"] = wall
     if args.note:
         extra["notes"] = args.note
     write_card(args.output, task.name, int(model.num_timesteps), config, extra)

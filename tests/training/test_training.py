@@ -70,6 +70,24 @@ def test_that_export_writes_one_self_contained_onnx_file_and_a_model_card(tiny_p
     assert "motor_speed_sigma" in card["randomization"]
 
 
+def test_that_a_step_checkpoint_exports_with_its_runs_config_and_wall_time(tiny_run: Path, tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    first = sorted((tiny_run / "checkpoints").glob("step_*.zip"))[0]
+    steps = int(first.stem.split("_")[1])
+    out = tmp_path / "early" / "nav-flat.onnx"
+    assert main(["export", str(first), "-o", str(out), "--eval-episodes", "0"]) == 0
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["task"] == "nav-flat" and card["training_steps"] == steps
+    with (tiny_run / "episodes.csv").open() as fh:
+        rows = [r for r in csv.DictReader(fh) if int(r["steps"]) <= steps]
+    assert card["training_wall_seconds"] == float(rows[-1]["wall_seconds"])
+    lone = tmp_path / "lone.zip"  # a checkpoint copied away from its run folder
+    lone.write_bytes(first.read_bytes())
+    assert main(["export", str(lone), "-o", str(tmp_path / "x.onnx")]) == 2
+    assert "pass --task" in capsys.readouterr().err
+    assert not (tmp_path / "x.onnx").exists()
+
+
 def test_that_onnx_actions_equal_sb3_deterministic_predict_on_10000_observations(
         tiny_run: Path, tiny_policy: Path) -> None:
     from stable_baselines3 import PPO
