@@ -243,6 +243,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _choose_design(self, requested: Any, rng: np.random.Generator) -> Design:
         drawn = Design.sample(rng)  # always drawn, so the other streams never shift
+        while self.randomization.tumbling_designs_only and not drawn.can_tumble:
+            drawn = Design.sample(rng)  # the design has a stream of its own
         if requested is not None:
             if isinstance(requested, Design):
                 return requested

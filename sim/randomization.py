@@ -21,6 +21,9 @@ class Randomization:
     Attributes:
         design: when the environment has no fixed design, draw ``w`` uniformly over the
             bounds every episode (one policy then serves every design, as in the thesis).
+        tumbling_designs_only: with ``design``, draw uniformly over the designs whose legs
+            can tumble the body (``l > r``, 74 % of the bounds) instead: the optimiser never
+            runs episodes on the others, and on them no action changes anything.
         mass_rel_sigma: body and leg masses (Schwartzwald et al.: 5 %).
         inertia_rel_sigma: each principal moment of the body.
         friction: nominal lateral friction between robot and ground.
@@ -33,6 +36,7 @@ class Randomization:
     """
 
     design: bool = True
+    tumbling_designs_only: bool = False
     mass_rel_sigma: float = 0.05
     inertia_rel_sigma: float = 0.05
     friction: float = 0.9

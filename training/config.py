@@ -31,6 +31,9 @@ class TrainConfig:
             ``n_steps`` is per environment.
         net_arch: hidden layer sizes of the policy and value MLPs (separate networks).
         state_weight, progress_weight: the environment's reward shaping.
+        tumbling_designs_only: draw training designs only among those whose legs can tumble
+            the body (:class:`~tumblebot.sim.randomization.Randomization`); off in the
+            runs behind the bundled policies except where their card's config says so.
         init_from: checkpoint whose policy and value weights started this run (a warm
             start from another task's run, ``tumblebot train --init-from``), or None.
         init_from_steps: training steps that checkpoint had already taken.
@@ -54,6 +57,7 @@ class TrainConfig:
     net_arch: list[int] = field(default_factory=lambda: [128, 128])
     state_weight: float = 1.0
     progress_weight: float = 5.0
+    tumbling_designs_only: bool = False
     init_from: str | None = None
     init_from_steps: int = 0
 
@@ -74,6 +78,9 @@ class TrainConfig:
             raise TrainingError(f"training config init_from={self.init_from!r} must be a checkpoint path or null")
         if not isinstance(self.init_from_steps, int) or self.init_from_steps < 0:
             raise TrainingError(f"training config init_from_steps={self.init_from_steps!r} must be >= 0")
+        if not isinstance(self.tumbling_designs_only, bool):
+            raise TrainingError(f"training config tumbling_designs_only={self.tumbling_designs_only!r} "
+                                "must be true or false")
         if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
             raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
 

@@ -38,24 +38,28 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 from tqdm import tqdm
 
 from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import TumblerFeaturesExtractor
 
 CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
 
 
-def make_env(task: str, state_weight: float, progress_weight: float) -> TumblerEnv:
+def make_env(task: str, state_weight: float, progress_weight: float,
+             tumbling_designs_only: bool = False) -> TumblerEnv:
     """Environment factory, run inside each worker process."""
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:
         # Ctrl-C reaches the whole process group; only the trainer handles it (it saves a
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight)
+    return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
+                      randomization=Randomization(tumbling_designs_only=tumbling_designs_only))
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
-    factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight)
+    factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight,
+                                                config.tumbling_designs_only)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

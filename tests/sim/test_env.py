@@ -138,6 +138,25 @@ def test_that_designs_are_drawn_over_the_bounds_when_randomised() -> None:
         env.close()
 
 
+def test_that_training_can_draw_only_designs_that_can_tumble_without_shifting_the_world() -> None:
+    every = TumblerEnv(task="distance-flat", randomization=Randomization())
+    tumbling = TumblerEnv(task="distance-flat", randomization=Randomization(tumbling_designs_only=True))
+    try:
+        seeds = range(24)
+        drawn = [Design.from_sequence(every.reset(seed=s)[1]["design"]) for s in seeds]
+        assert not all(d.can_tumble for d in drawn)  # a quarter of the bounds cannot tumble
+        infos = [tumbling.reset(seed=s)[1] for s in seeds]
+        assert all(Design.from_sequence(i["design"]).can_tumble for i in infos)
+        for s, d, info in zip(seeds, drawn, infos, strict=True):
+            if d.can_tumble:  # the first draw is kept when it can tumble
+                assert info["design"] == d.as_tuple()
+            # the world is the same whichever design was drawn (common random numbers)
+            assert info["leg_angles"] == every.reset(seed=s)[1]["leg_angles"]
+    finally:
+        every.close()
+        tumbling.close()
+
+
 def test_that_the_observation_layout_is_position_quaternion_and_last_command() -> None:
     env = TumblerEnv(task="nav-flat")
     try:

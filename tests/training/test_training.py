@@ -247,6 +247,19 @@ def test_that_bad_training_configs_are_rejected() -> None:
         TrainConfig(init_from=3)  # type: ignore[arg-type]
     with pytest.raises(TrainingError, match="unknown training config keys: lr"):
         TrainConfig.from_dict({"lr": 1})
+    with pytest.raises(TrainingError, match="tumbling_designs_only='yes' must be true or false"):
+        TrainConfig.from_dict({"tumbling_designs_only": "yes"})
+
+
+def test_that_the_training_environments_follow_the_configs_design_distribution() -> None:
+    from tumblebot.training.ppo import make_env
+
+    for only in (False, True):
+        env = make_env("nav-flat", 1.0, 5.0, only)
+        try:
+            assert env.randomization.tumbling_designs_only is only and env.randomization.design
+        finally:
+            env.close()
 
 
 def test_that_ctrl_c_saves_a_checkpoint_and_exits_cleanly_regression_worker_hang(tmp_path: Path) -> None:
