@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.errors import TumblebotError
+from tumblebot.sim.randomization import Randomization
 
 
 class TrainingError(TumblebotError):
@@ -83,6 +84,10 @@ class TrainConfig:
                                 "must be true or false")
         if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
             raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
+
+    def randomization(self) -> Randomization:
+        """What the training environments randomise (the model card records the same)."""
+        return Randomization(tumbling_designs_only=self.tumbling_designs_only)
 
     @property
     def envs(self) -> int:

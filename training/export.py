@@ -111,7 +111,7 @@ def write_card(onnx_path: Path, task: str, steps: int, config: TrainConfig | Non
         "training_steps": steps,
         "seed": config.seed if config else None,
         "training_config": asdict(config) if config else None,
-        "randomization": asdict(Randomization(tumbling_designs_only=bool(config and config.tumbling_designs_only))),
+        "randomization": asdict(config.randomization() if config else Randomization()),
         "onnx_sha256": sha256_of(onnx_path),
     }
     if extra:

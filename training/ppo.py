@@ -46,7 +46,7 @@ CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
 
 
 def make_env(task: str, state_weight: float, progress_weight: float,
-             tumbling_designs_only: bool = False) -> TumblerEnv:
+             randomization: Randomization | None = None) -> TumblerEnv:
     """Environment factory, run inside each worker process."""
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:
@@ -54,12 +54,12 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                      randomization=Randomization(tumbling_designs_only=tumbling_designs_only))
+                      randomization=randomization)
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight,
-                                                config.tumbling_designs_only)
+                                                config.randomization())
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)
