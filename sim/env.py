@@ -13,12 +13,17 @@ thesis reward of the final state, reported as ``info["final_R"]`` on the last st
 
 Motor models (``motor_model``):
 
-* ``"dc"`` (default): the servo as a DC gear-motor, ``τ = ke·(u·V − ke·ω)/R``. It is
+* ``"dc"`` (default): the servo as a DC gear-motor, ``τ = τ_stall·(u − ω/γ̇)`` (with the
+  thesis constants ``τ_stall = ke·V/R ≈ 0.582 N·m``, i.e. ``τ = ke·(u·V − ke·ω)/R``). It is
   applied each substep through a velocity motor whose target is the free speed and whose
   force limit is the DC torque at the current speed; that reproduces the torque–speed
   line exactly and stays stable for any leg inertia (an explicit viscous term does not).
 * ``"velocity"``: a velocity controller at the free speed with the stall torque as
   force cap, the common approximation (cheaper: set once per command).
+
+``stall_torque`` (N·m, default the thesis constants' 0.582) scales both models: the DC
+line runs from it at standstill to zero at the free speed, and velocity control is capped
+at it. A predecessor-like strong servo is ``motor_model="velocity", stall_torque=10``.
 
 "Stop" holds the leg with a velocity-zero motor limited to the back-EMF braking torque
 plus ``hold_torque`` (gearbox friction and the servo's neutral-band braking).
@@ -54,6 +59,8 @@ MotorModel = Literal["dc", "velocity"]
 #: The design used when none is given and designs are not randomised: the thesis's ξ = 3 robot.
 DEFAULT_DESIGN = Design(0.292, 0.129, 0.098, 0.136)
 _POSITION_LIMIT = 100.0
+#: The largest stall torque accepted, N·m (the predecessor's strong simulated servo is 10).
+MAX_STALL_TORQUE = 100.0
 _JOINTS = (0, 1)
 
 
@@ -89,6 +96,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             (the random draws are still made, so other streams do not shift).
         randomization: what varies between episodes (:class:`Randomization`).
         motor_model: ``"dc"`` or ``"velocity"`` (see module docs).
+        stall_torque: the servo's stall torque, N·m (see module docs).
         episode_steps: steps per episode (thesis: 20).
         step_seconds: simulated seconds per step (thesis: 1).
         physics_hz: physics substeps per second (1/240 s keeps penetration ≈ 7 mm).
@@ -111,6 +119,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         design: Design | None = None,
         randomization: Randomization | None = None,
         motor_model: MotorModel = "dc",
+        stall_torque: float = C.STALL_TORQUE,
         episode_steps: int = 20,
         step_seconds: float = 1.0,
         physics_hz: int = 240,
@@ -127,6 +136,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.task: TaskSpec = get_task(task)
         if motor_model not in ("dc", "velocity"):
             raise SimError(f"motor_model={motor_model!r} must be 'dc' or 'velocity'")
+        if not (math.isfinite(stall_torque) and 0.0 < stall_torque <= MAX_STALL_TORQUE):
+            raise SimError(f"stall_torque={stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise SimError(f"render_mode={render_mode!r} must be one of {self.metadata['render_modes']}")
         if episode_steps < 1 or step_seconds <= 0 or physics_hz < 60:
@@ -137,6 +148,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.fixed_design = design
         self.randomization = randomization if randomization is not None else Randomization()
         self.motor_model: MotorModel = motor_model
+        self.stall_torque = float(stall_torque)
+        self._damping = self.stall_torque / C.LEG_SPEED  # the DC line's slope, N·m·s/rad
         self.episode_steps = episode_steps
         self.physics_hz = physics_hz
         self.substeps = round(step_seconds * physics_hz)
@@ -374,10 +387,11 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         t0, t1 = u0 * float(self._speed[0]), u1 * float(self._speed[1])
         if self.motor_model == "dc":
             s0, s1 = p.getJointStates(self._robot, _JOINTS, physicsClientId=c)
-            f0 = abs(C.MOTOR_DAMPING * (t0 - s0[1])) + (self.hold_torque if u0 == 0.0 else 0.0)
-            f1 = abs(C.MOTOR_DAMPING * (t1 - s1[1])) + (self.hold_torque if u1 == 0.0 else 0.0)
+            d = self._damping
+            f0 = abs(d * (t0 - s0[1])) + (self.hold_torque if u0 == 0.0 else 0.0)
+            f1 = abs(d * (t1 - s1[1])) + (self.hold_torque if u1 == 0.0 else 0.0)
         else:  # velocity control capped at the stall torque, holding included
-            f0 = f1 = C.STALL_TORQUE
+            f0 = f1 = self.stall_torque
         p.setJointMotorControlArray(self._robot, _JOINTS, p.VELOCITY_CONTROL, targetVelocities=(t0, t1),
                                     forces=(f0, f1), physicsClientId=c)
 

@@ -8,9 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
+from tumblebot.sim.goto import GotoController, check_navigation_task
 from tumblebot.sim.randomization import Randomization
 
 
@@ -43,23 +45,31 @@ def run_gait_episode(
     randomization: Randomization | None = None,
     motor_model: str = "dc",
     record: bool = False,
+    stall_torque: float = STALL_TORQUE,
 ) -> EpisodeResult:
-    """One episode of ``task`` for ``design`` driven by a scripted ``gait``."""
+    """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
+    the closed-loop navigation controller)."""
     from tumblebot.sim.env import TumblerEnv
 
-    gait_fn = get_gait(gait)
+    goto: GotoController | None = None
+    if gait == "goto":
+        check_navigation_task(task)
+        goto = GotoController()
+    else:
+        gait_fn = get_gait(gait)
     env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),
                      motor_model=motor_model,  # type: ignore[arg-type]
+                     stall_torque=stall_torque,
                      render_mode="rgb_array_list" if record else None)
     try:
         gait_rng = np.random.default_rng(seed)
-        env.reset(seed=seed)
         steps: list[StepRecord] = []
         frames: list[np.ndarray] = []
         start = time.perf_counter()
         info: dict[str, object] = {}
+        obs, _ = env.reset(seed=seed)
         for t in range(env.episode_steps):
-            action = gait_fn(t, gait_rng)
+            action = goto.act(obs, t) if goto is not None else gait_fn(t, gait_rng)
             obs, _, terminated, truncated, info = env.step(np.array(action))
             steps.append(StepRecord(t + 1, action, (float(obs[0]), float(obs[1]), float(obs[2])), float(info["R"])))  # type: ignore[arg-type]
             if terminated or truncated:

@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
+from tumblebot.sim.goto import GotoController, check_navigation_task
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.stats import mean_ci95
@@ -29,14 +31,59 @@ from tumblebot.sim.tasks import get_task
 
 @dataclass(frozen=True)
 class Controller:
-    """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path) or ``"gait"``
-    (``name`` = gait name, ``random`` included). Picklable, so workers can rebuild it."""
+    """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
+    (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
+    controller of :mod:`tumblebot.sim.goto`). Picklable, so workers can rebuild it."""
 
     kind: str
     name: str
 
+    @classmethod
+    def of_gait(cls, name: str) -> Controller:
+        """``--gait NAME``: a scripted gait, or ``goto``."""
+        return cls("goto", "goto") if name == "goto" else cls("gait", name)
+
     def label(self) -> str:
-        return Path(self.name).name if self.kind == "onnx" else f"gait:{self.name}"
+        if self.kind == "onnx":
+            return Path(self.name).name
+        return "goto" if self.kind == "goto" else f"gait:{self.name}"
+
+    def check(self, task: str) -> None:
+        """Fail fast, in this process, with one clear error."""
+        if self.kind == "onnx":
+            from tumblebot.sim.policy import OnnxPolicy
+
+            OnnxPolicy(Path(self.name), task=get_task(task).name)
+        elif self.kind == "goto":
+            check_navigation_task(task)
+        elif self.kind == "gait":
+            get_gait(self.name)
+        else:
+            raise SimError(f"unknown controller kind {self.kind!r}")
+
+
+@dataclass(frozen=True)
+class Servo:
+    """The servo model of an evaluation: ``model`` ``"dc"`` or ``"velocity"`` and the stall
+    torque in N·m (see :mod:`tumblebot.sim.env`). Part of what a result means."""
+
+    model: str = "dc"
+    stall_torque: float = STALL_TORQUE
+
+    def __post_init__(self) -> None:
+        if self.model not in ("dc", "velocity"):
+            raise SimError(f"motor model {self.model!r} must be 'dc' or 'velocity'")
+        if not (math.isfinite(self.stall_torque) and 0.0 < self.stall_torque <= 100.0):
+            raise SimError(f"stall torque {self.stall_torque!r} N·m must be in (0, 100]")
+
+    def env_kwargs(self) -> dict[str, Any]:
+        return {"motor_model": self.model, "stall_torque": self.stall_torque}
+
+    def describe(self) -> str:
+        return f"{self.model} servo, stall torque {self.stall_torque:.3g} N·m"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"motor_model": self.model, "stall_torque": self.stall_torque}
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -54,6 +101,7 @@ class EvalResult:
     final_distance: np.ndarray  #: planar distance to the origin at the end, m
     final_position: np.ndarray  #: (N, 3)
     wall_seconds: float
+    servo: Servo = field(default_factory=Servo)
     e: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -79,6 +127,7 @@ class EvalResult:
             "task": self.task,
             "design": dict(zip(("x", "y", "z", "l"), self.design.as_tuple(), strict=True)),
             "controller": self.controller,
+            **self.servo.as_dict(),
             "seed": self.seed,
             "episodes": self.episodes,
             "mean_R": self.mean_R,
@@ -99,15 +148,18 @@ class EvalResult:
 _worker: dict[str, Any] = {}
 
 
-def _init_worker(task: str, controller: Controller, design: Design) -> None:
+def _init_worker(task: str, controller: Controller, design: Design, servo: Servo) -> None:
     from tumblebot.sim.env import TumblerEnv
 
-    _worker["env"] = TumblerEnv(task=task, design=design, randomization=Randomization(design=False))
+    _worker["env"] = TumblerEnv(task=task, design=design, randomization=Randomization(design=False),
+                                **servo.env_kwargs())
     _worker["controller"] = controller
     if controller.kind == "onnx":
         from tumblebot.sim.policy import OnnxPolicy
 
         _worker["policy"] = OnnxPolicy(Path(controller.name), task=get_task(task).name)
+    elif controller.kind == "goto":
+        _worker["goto"] = GotoController()
     else:
         _worker["gait"] = get_gait(controller.name)
 
@@ -117,9 +169,17 @@ def _run_episode(job: tuple[int, int]) -> tuple[int, float, tuple[float, float, 
     env = _worker["env"]
     obs, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
+    goto: GotoController | None = _worker.get("goto")
+    if goto is not None:
+        goto.reset()
     info: dict[str, Any] = {}
     for step in range(env.episode_steps):
-        action = _worker["policy"].act(obs) if "policy" in _worker else np.array(_worker["gait"](step, rng))
+        if "policy" in _worker:
+            action = _worker["policy"].act(obs)
+        elif goto is not None:
+            action = np.array(goto.act(obs, step))
+        else:
+            action = np.array(_worker["gait"](step, rng))
         obs, _, _, truncated, info = env.step(action)
         if truncated:
             break
@@ -132,19 +192,17 @@ def _jobs(seed: int, episodes: int) -> list[tuple[int, int]]:
 
 
 def evaluate(task: str, design: Design, controller: Controller, episodes: int, seed: int = 0,
-             workers: int = 1, progress: bool = False) -> EvalResult:
+             workers: int = 1, progress: bool = False, servo: Servo | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
     spec = get_task(task)
+    servo = servo or Servo()
     if episodes < 1:
         raise SimError(f"episodes={episodes} must be at least 1")
     if workers < 1:
         raise SimError(f"workers={workers} must be at least 1")
-    if controller.kind == "onnx":
-        from tumblebot.sim.policy import OnnxPolicy
-
-        OnnxPolicy(Path(controller.name), task=spec.name)  # fail fast, in this process
-    else:
-        get_gait(controller.name)
+    if seed < 0:
+        raise SimError(f"seed={seed} must be a non-negative integer")
+    controller.check(spec.name)
     jobs = _jobs(seed, episodes)
     results: list[tuple[int, float, tuple[float, float, float]]] = []
     start = time.perf_counter()
@@ -155,7 +213,7 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
         bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
     it: Iterator[tuple[int, float, tuple[float, float, float]]]
     if workers == 1:
-        _init_worker(spec.name, controller, design)
+        _init_worker(spec.name, controller, design, servo)
         try:
             it = map(_run_episode, jobs)
             for r in it:
@@ -167,7 +225,7 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
             _worker.clear()
     else:
         ctx = mp.get_context("forkserver")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(spec.name, controller, design)) as pool:
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(spec.name, controller, design, servo)) as pool:
             for r in pool.imap_unordered(_run_episode, jobs, chunksize=2):
                 results.append(r)
                 if bar is not None:
@@ -178,4 +236,4 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
     R = np.array([r[1] for r in results])
     pos = np.array([r[2] for r in results])
     return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
-                      time.perf_counter() - start)
+                      time.perf_counter() - start, servo)

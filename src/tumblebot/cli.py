@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from tumblebot.errors import TumblebotError
 
@@ -64,19 +67,26 @@ def _sim(args: argparse.Namespace) -> int:
     from tumblebot.sim.design import Design
     from tumblebot.sim.episode import run_gait_episode, write_animation
     from tumblebot.sim.gaits import get_gait
+    from tumblebot.sim.goto import check_navigation_task
     from tumblebot.sim.randomization import Randomization
     from tumblebot.sim.tasks import get_task
 
     task = get_task(args.task)
-    get_gait(args.gait)
+    if args.gait == "goto":
+        check_navigation_task(task.name)
+    else:
+        get_gait(args.gait)
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
-    if args.video is not None and args.video.suffix.lower() not in (".gif", ".png"):
-        raise TumblebotError(f"--video {args.video}: the file must end in .gif (or .png)")
+    servo = _servo(args)
+    if args.video is not None:
+        if args.video.suffix.lower() not in (".gif", ".png"):
+            raise TumblebotError(f"--video {args.video}: the file must end in .gif (or .png)")
+        _check_writable(args.video, "--video")
     rnd = Randomization(design=False) if args.randomize else Randomization.off()
-    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, args.motor_model,
-                              record=args.video is not None)
+    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, servo.model,
+                              record=args.video is not None, stall_torque=servo.stall_torque)
     print(f"{task.name}: {task.description}")
-    print(f"{w}, gait {args.gait!r}, motor model {args.motor_model}, seed {args.seed}")
+    print(f"{w}, gait {args.gait!r}, {servo.describe()}, seed {args.seed}")
     print(f"{'step':>4}  {'action (R, L)':<18} {'x':>7} {'y':>7} {'z':>6}  {'R':>7}")
     labels = ("reverse", "stop", "forward")
     for s in result.steps:
@@ -183,14 +193,21 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise TumblebotError("--episodes and --workers must be at least 1")
     if args.gait is not None and args.policy is not None:
         raise TumblebotError("give --policy or --gait, not both")
+    if args.xi is not None and not args.xi >= 0:
+        raise TumblebotError(f"--xi {args.xi} must be >= 0 (or inf)")
+    servo = _servo(args)
     if args.gait is not None:
-        controller = Controller("gait", args.gait)
+        controller = Controller.of_gait(args.gait)
     else:
         path = args.policy or bundled_policy(task.name)
         if args.policy is None and not path.is_file():
             raise PolicyError(f"no bundled policy for {task.name} ({path.name}); pass --policy FILE")
         controller = Controller("onnx", str(path))
-    result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json)
+    controller.check(task.name)
+    if args.csv is not None:
+        _check_writable(args.csv, "--csv")
+    result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json,
+                      servo=servo)
     summary = result.summary(xi=args.xi)
     if args.csv is not None:
         import csv
@@ -204,7 +221,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return 0
     lo, hi = summary["ci95"]
-    print(f"{task.name}, {w}, {result.controller}, {result.episodes} episodes, seed {args.seed}")
+    print(f"{task.name}, {w}, {result.controller}, {servo.describe()}, {result.episodes} episodes, seed {args.seed}")
     print(f"mean final-state R  {summary['mean_R']:.3f}  (95 % CI {lo:.3f} … {hi:.3f}, sd {summary['sd_R']:.3f})")
     print(f"median final distance to the origin  {summary['median_final_distance']:.3f} m")
     e = summary["e"]
@@ -302,6 +319,58 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _servo(args: argparse.Namespace) -> Any:
+    """The ``--motor-model`` / ``--stall-torque`` pair as an evaluation :class:`Servo`."""
+    from tumblebot.sim.evaluate import Servo
+
+    return Servo(args.motor_model, args.stall_torque)
+
+
+def _check_writable(path: Path, flag: str) -> None:
+    """Refuse, before any work, an output path that cannot be written."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise TumblebotError(f"{flag} {path} is a folder, not a file")
+    probe = parent
+    while not probe.exists():  # the first existing ancestor must be a writable folder
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise TumblebotError(f"{flag} {path}: cannot write in {probe}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise TumblebotError(f"{flag} {path} is not writable")
+
+
+def _add_servo_arguments(p: argparse.ArgumentParser) -> None:
+    from tumblebot.sim.constants import STALL_TORQUE
+
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
+                   help="servo model: dc (torque falls linearly from the stall torque to zero at the free "
+                        "speed) or velocity (velocity control capped at the stall torque); default dc")
+    p.add_argument("--stall-torque", type=_stall_torque, default=STALL_TORQUE, metavar="N·m",
+                   help=f"servo stall torque in N·m (default {STALL_TORQUE:.3f}, the thesis's motor constants; "
+                        "a predecessor-like strong servo is --motor-model velocity --stall-torque 10)")
+
+
+def _stall_torque(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and 0.0 < value <= 100.0):
+        raise argparse.ArgumentTypeError(f"{text} N·m must be in (0, 100]")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"{value} must be a non-negative integer")
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -353,10 +422,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task", default="nav-flat", help="nav-flat, nav-terrain, distance-flat or incline")
     p.add_argument("--design", default="0.292,0.129,0.098,0.136", metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--gait", default="forward",
-                   help="forward, reverse, alternate, pulse, spin, stop or random")
-    p.add_argument("--seed", type=int, default=0, help="episode seed (start pose, terrain, noise)")
-    p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
-                   help="DC torque-speed servo model or velocity-with-force-cap")
+                   help="forward, reverse, alternate, pulse, spin, stop, random, or goto (the closed-loop "
+                        "navigation controller; nav-flat and nav-terrain only)")
+    p.add_argument("--seed", type=_seed, default=0, help="episode seed (start pose, terrain, noise)")
+    _add_servo_arguments(p)
     p.add_argument("--randomize", action="store_true",
                    help="apply domain randomisation (masses, friction, motor noise, latency, start pose)")
     p.add_argument("--video", type=Path, default=None, metavar="OUT.gif", help="write an animated GIF")
@@ -401,10 +470,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task", required=True, help="nav-flat, nav-terrain, distance-flat or incline")
     p.add_argument("--design", required=True, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--episodes", type=int, default=240, help="number of episodes (default 240)")
-    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    p.add_argument("--seed", type=_seed, default=0, help="evaluation seed")
     p.add_argument("--workers", type=int, default=1, help="worker processes")
     p.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: the bundled one)")
-    p.add_argument("--gait", default=None, help="evaluate a scripted gait instead of a policy")
+    p.add_argument("--gait", default=None,
+                   help="evaluate a scripted gait (forward, spin, …) or goto, the closed-loop navigation "
+                        "controller, instead of a policy")
+    _add_servo_arguments(p)
     p.add_argument("--xi", type=float, default=None, help="also report f = R/(e+1)^xi")
     p.add_argument("--csv", type=Path, default=None, help="write per-episode results to this CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object (mean_R, ci95, e, episodes, …)")

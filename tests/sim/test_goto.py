@@ -1,0 +1,100 @@
+"""The ``goto`` navigation controller and the servo's stall torque."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from tumblebot.cli import main
+from tumblebot.sim.design import Design
+from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.evaluate import Controller, Servo, evaluate
+from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoController, heading
+
+XI3 = Design(0.292, 0.129, 0.098, 0.136)
+XI0 = Design(0.293, 0.117, 0.158, 0.218)
+
+
+def _obs(x: float, y: float, yaw: float) -> np.ndarray:
+    """An upright observation at (x, y) whose leg axis has yaw ``yaw``."""
+    return np.array([x, y, 0.1, 0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2), 0.0, 0.0], dtype=np.float32)
+
+
+def test_that_the_heading_is_the_yaw_of_the_leg_axis() -> None:
+    for yaw in (-3.0, -1.0, 0.0, 0.5, 2.9):
+        assert heading(_obs(0, 0, yaw)[3:7]) == pytest.approx(yaw, abs=1e-6)
+
+
+def test_that_goto_stops_at_the_goal_and_on_the_last_step() -> None:
+    ctl = GotoController()
+    assert ctl.act(_obs(0.02, -0.01, 0.3), 0) == STOP
+    ctl.reset()
+    assert ctl.act(_obs(1.5, 0.0, 0.0), 19) == STOP
+
+
+def test_that_goto_drives_when_facing_the_goal_and_spins_when_not() -> None:
+    ctl = GotoController()
+    # Forward tumbling goes toward ψ − π/2: with ψ = π/2 that is +x... the goal at the origin
+    # seen from (−1, 0) lies along +x.
+    assert ctl.act(_obs(-1.0, 0.0, math.pi / 2), 0) == FORWARD
+    ctl.reset()
+    assert ctl.act(_obs(-1.0, 0.0, math.pi), 0) in (SPIN_POSITIVE, SPIN_NEGATIVE)
+
+
+def test_that_goto_gives_up_a_spin_that_stalls_and_tries_the_other() -> None:
+    ctl = GotoController()
+    obs = _obs(-1.0, 0.0, math.pi / 2 + 1.2)  # goal 1.2 rad to the right of forward: spin negative
+    first = ctl.act(obs, 0)
+    assert first == SPIN_NEGATIVE
+    for step in range(1, 4):  # the spin does nothing: the heading never changes
+        action = ctl.act(obs, step)
+    assert action != SPIN_NEGATIVE
+
+
+def test_that_goto_reaches_the_goal_with_the_thesis_xi3_robot() -> None:
+    result = evaluate("nav-flat", XI3, Controller.of_gait("goto"), episodes=24, seed=0)
+    assert result.mean_R > 0.75, result.R  # 0.86 on 96 episodes
+
+
+def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_one_does_not() -> None:
+    strong = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0,
+                      servo=Servo("velocity", 10.0))
+    realistic = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0)
+    assert strong.mean_R > 0.7 and realistic.mean_R < 0.5, (strong.R, realistic.R)
+
+
+def test_that_the_stall_torque_scales_the_servo() -> None:
+    with pytest.raises(SimError, match="stall_torque"):
+        TumblerEnv(stall_torque=0.0)
+    with pytest.raises(SimError, match="stall torque"):
+        Servo("dc", float("nan"))
+    with pytest.raises(SimError, match="motor model"):
+        Servo("stepper", 1.0)
+
+
+def test_that_evaluate_json_records_the_servo_and_the_controller(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", "--task", "nav-flat", "--design", "0.292,0.129,0.098,0.136", "--gait", "goto",
+                 "--motor-model", "velocity", "--stall-torque", "2", "--episodes", "2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["controller"] == "goto" and out["motor_model"] == "velocity" and out["stall_torque"] == 2.0
+
+
+@pytest.mark.parametrize("task", ["distance-flat", "incline"])
+def test_that_goto_is_refused_for_tasks_that_are_not_navigation(task: str, capsys: pytest.CaptureFixture[str]) -> None:
+    for command in ("evaluate", "sim"):
+        assert main([command, "--task", task, "--design", "0.292,0.129,0.098,0.136", "--gait", "goto"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not navigation" in err[0], err
+
+
+@pytest.mark.parametrize("argv", [["--seed", "-1"], ["--stall-torque", "0"], ["--stall-torque", "nan"],
+                                  ["--motor-model", "stepper"]])
+def test_that_bad_servo_and_seed_arguments_are_one_error_line(argv: list[str], capsys: pytest.CaptureFixture[str]
+                                                             ) -> None:
+    for command in ("evaluate", "sim"):
+        with pytest.raises(SystemExit) as exc:
+            main([command, "--task", "nav-flat", "--design", "0.292,0.129,0.098,0.136", *argv])
+        assert exc.value.code == 2
+        assert "Traceback" not in capsys.readouterr().err
