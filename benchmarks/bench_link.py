@@ -17,8 +17,6 @@ from __future__ import annotations
 import argparse
 import platform
 import socket
-import struct
-import sys
 import tempfile
 import threading
 import time
@@ -27,11 +25,9 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hil_tests"))
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.pi_agent import protocol as P
 from tumblebot.pi_agent.agent import Agent, AgentConfig, open_serial
-
-from emulator import EmulatedUno
 
 KEY = bytes(range(32))
 
@@ -55,7 +51,7 @@ def speeds_in(data: bytes) -> tuple[int, int] | None:
     """The (right, left) of a SET_SPEEDS frame in one serial write, else None."""
     for frame in P.FrameDecoder().feed(data):
         if frame.type == P.MsgType.SET_SPEEDS:
-            right, left = struct.unpack("<bb", frame.payload)
+            right, left = P.unpack_speeds(frame.payload)
             return right, left
     return None
 
@@ -77,11 +73,12 @@ def main() -> None:
         while not agent.link.ready:
             time.sleep(0.05)
         epoch, to_serial, to_pulse = int(time.time()), [], []
+        keys = P.LinkKeys.derive(KEY, agent.session)  # in-process: the session needs no HELLO here
         states = [((1, 1), (2000.5, 1000.5)), ((0, 0), (1500.5, 1500.5))]
         for i in range(args.commands):
             (right, left), (w_right, w_left) = states[i % 2]
-            wire = P.encode_datagram(P.Datagram(P.UdpType.COMMAND, 7, epoch, i + 1, struct.pack("<bb", right, left)),
-                                     KEY)
+            wire = P.encode_datagram(P.Datagram(P.UdpType.COMMAND, 7, epoch, i + 1, P.command_payload(right, left)),
+                                     keys)
             mark = len(writes)
             sent = time.monotonic()
             sock.sendto(wire, agent.address)

@@ -10,9 +10,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.pi_agent import protocol as P
-
-from emulator import EmulatedUno
 
 
 class Link:

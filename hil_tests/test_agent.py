@@ -3,63 +3,112 @@ firmware in simavr -> measured servo pulses."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
+import select
 import socket
-import struct
 import subprocess
 import sys
+import threading
 import time
+import tty
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.pi_agent import protocol as P
-
-from emulator import EmulatedUno
 
 KEY = bytes(range(32))
 NEUTRAL = 1500.5
 
 
+pytestmark = pytest.mark.hil
+
+
 class Host:
-    """What the host controller does: authenticated datagrams with a rising counter."""
+    """What the host controller does, written from docs/protocol.md: HELLO for the agent's
+    session id, then authenticated datagrams with a rising counter under the session's
+    host -> agent key."""
 
     def __init__(self, port: int, key: bytes = KEY, sender: int = 7) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(1.0)
+        self.sock.settimeout(0.2)
         self.addr = ("127.0.0.1", port)
         self.key, self.sender = key, sender
         self.epoch = int(time.time())
         self.counter = 0
+        self.keys: P.LinkKeys | None = None
+        self.last_telemetry_wire = b""
 
-    def datagram(self, dtype: int, payload: bytes = b"", counter: int | None = None, key: bytes | None = None) -> bytes:
+    def handshake(self, timeout: float = 2.0) -> bytes:
+        """HELLO until a SESSION answers it; returns the session id."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            nonce = random.getrandbits(64)
+            hello_keys = P.LinkKeys.derive(self.key, bytes(P.SESSION_SIZE))
+            self.counter += 1
+            self.send(P.encode_datagram(P.Datagram(P.UdpType.HELLO, self.sender, self.epoch, self.counter,
+                                                   P.hello_payload(nonce)), hello_keys))
+            try:
+                while True:
+                    data, _ = self.sock.recvfrom(2048)
+                    session = P.peek_session(data)
+                    if session is None:
+                        continue
+                    d = P.decode_datagram(data, P.LinkKeys.derive(self.key, session), P.TO_HOST)
+                    got, confirmed = P.unpack_session(d.payload)
+                    if got == nonce:
+                        self.keys = P.LinkKeys.derive(self.key, confirmed)
+                        return confirmed
+            except (TimeoutError, OSError):
+                time.sleep(0.25)  # the agent answers at most 5 HELLOs a second
+        raise TimeoutError("no SESSION from the agent")
+
+    def datagram(self, dtype: int, payload: bytes = b"", counter: int | None = None, key: bytes | None = None,
+                 sender: int | None = None) -> bytes:
         if counter is None:
             self.counter += 1
             counter = self.counter
-        return P.encode_datagram(P.Datagram(dtype, self.sender, self.epoch, counter, payload), key or self.key)
+        if self.keys is None:
+            self.handshake()
+        assert self.keys is not None
+        keys = self.keys if key is None else P.LinkKeys.derive(key, self.keys.session)
+        return P.encode_datagram(P.Datagram(dtype, self.sender if sender is None else sender, self.epoch, counter,
+                                            payload), keys)
 
     def send(self, wire: bytes) -> None:
         self.sock.sendto(wire, self.addr)
 
     def command(self, right: int, left: int) -> bytes:
-        wire = self.datagram(P.UdpType.COMMAND, struct.pack("<bb", right, left))
+        wire = self.datagram(P.UdpType.COMMAND, P.command_payload(right, left))
         self.send(wire)
         return wire
 
-    def telemetry(self) -> dict:
+    def telemetry(self, timeout: float = 3.0) -> dict:
+        """Ask until answered (the agent answers at most 20 requests a second)."""
         nonce = random.getrandbits(32)
-        self.send(self.datagram(P.UdpType.TELEMETRY_REQUEST, struct.pack("<I", nonce)))
-        deadline = time.monotonic() + 2.0
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            data, _ = self.sock.recvfrom(2048)
-            d = P.decode_datagram(data, self.key)
-            body = json.loads(d.payload)
-            if body["nonce"] == nonce:
-                return body
+            self.send(self.datagram(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(nonce)))
+            assert self.keys is not None
+            asked = time.monotonic()
+            while time.monotonic() - asked < 0.2:
+                try:
+                    data, _ = self.sock.recvfrom(2048)
+                except TimeoutError:
+                    break
+                if P.peek_session(data) is not None:
+                    continue
+                d = P.decode_datagram(data, self.keys, P.TO_HOST)
+                body = json.loads(d.payload)
+                if body["nonce"] == nonce:
+                    self.last_telemetry_wire = data
+                    return body
         raise TimeoutError("no telemetry")
 
 
@@ -71,35 +120,114 @@ def free_udp_port() -> int:
     return port
 
 
-@pytest.fixture
-def chain(tmp_path: Path) -> Iterator[tuple[EmulatedUno, Host, subprocess.Popen, Path]]:
-    uno = EmulatedUno()
-    device = tmp_path / "ttyACM0"  # a stable name, as udev gives a real Uno
-    device.symlink_to(uno.pty)
-    key_file = tmp_path / "agent.key"
-    key_file.write_bytes(KEY)
-    key_file.chmod(0o600)
-    port = free_udp_port()
-    config = tmp_path / "agent.toml"
-    config.write_text(f'serial_port = "{device}"\nbind_address = "127.0.0.1"\nbind_port = {port}\n'
-                      f'allowed_host = "127.0.0.1"\nkey_file = "{key_file}"\n')
-    agent = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(config)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    host = Host(port)
-    try:
-        deadline = time.monotonic() + 10
-        while True:  # the agent is up and has heard READY
+class SerialTap:
+    """A relay between the agent and the emulated Uno: the agent opens the tap's pty, the
+    tap forwards every byte both ways, and a test can inject frames toward the agent as
+    if the firmware (or line noise) had sent them."""
+
+    def __init__(self, uno: EmulatedUno) -> None:
+        self.uno = uno
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.pty = os.ttyname(slave)
+        self._slave = slave
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._threads = [threading.Thread(target=self._up, daemon=True),
+                         threading.Thread(target=self._down, daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def _up(self) -> None:  # agent -> firmware
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self.master], [], [], 0.05)
+            if ready:
+                try:
+                    data = os.read(self.master, 256)
+                except OSError:
+                    continue  # no reader on the slave side (the agent is between runs)
+                self.uno.write(data)
+
+    def _down(self) -> None:  # firmware -> agent
+        while not self._stop.is_set():
+            data = self.uno.port.read(256)
+            if data:
+                self.to_agent(data)
+
+    def to_agent(self, data: bytes) -> None:
+        with self._lock, contextlib.suppress(OSError):
+            os.write(self.master, data)
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2)
+        os.close(self.master)
+        os.close(self._slave)
+
+
+class Chain:
+    """UDP test host -> the real agent process -> (tap) -> the real firmware in simavr."""
+
+    def __init__(self, tmp_path: Path, tapped: bool = False) -> None:
+        self.uno = EmulatedUno()
+        self.tap = SerialTap(self.uno) if tapped else None
+        self.device = tmp_path / "ttyACM0"  # a stable name, as udev gives a real Uno
+        self.device.symlink_to(self.tap.pty if self.tap else self.uno.pty)
+        key_file = tmp_path / "agent.key"
+        key_file.write_bytes(KEY)
+        key_file.chmod(0o600)
+        self.port = free_udp_port()
+        self.config = tmp_path / "agent.toml"
+        self.config.write_text(f'serial_port = "{self.device}"\nbind_address = "127.0.0.1"\nbind_port = {self.port}\n'
+                               f'allowed_host = "127.0.0.1"\nkey_file = "{key_file}"\n')
+        self.agent: subprocess.Popen[str] | None = None
+        self.host = Host(self.port)
+        self.start_agent()
+
+    def start_agent(self) -> None:
+        self.agent = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(self.config)],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        self.host.keys = None
+        deadline = time.monotonic() + 20
+        while True:  # the agent is up and has heard the firmware
             try:
-                if host.telemetry()["serial_connected"]:
+                if self.host.telemetry()["serial_connected"]:
                     break
             except (TimeoutError, OSError):
                 pass
             assert time.monotonic() < deadline, "agent never connected"
-        yield uno, host, agent, device
+
+    def stop_agent(self) -> None:
+        assert self.agent is not None
+        self.agent.terminate()
+        self.agent.wait(timeout=10)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.stop_agent()
+        if self.tap is not None:
+            self.tap.close()
+        self.uno.close()
+
+
+@pytest.fixture
+def chain(tmp_path: Path) -> Iterator[tuple[EmulatedUno, Host, subprocess.Popen, Path]]:
+    c = Chain(tmp_path)
+    try:
+        assert c.agent is not None
+        yield c.uno, c.host, c.agent, c.device
     finally:
-        agent.terminate()
-        agent.wait(timeout=5)
-        uno.close()
+        c.close()
+
+
+@pytest.fixture
+def tapped(tmp_path: Path) -> Iterator[Chain]:
+    c = Chain(tmp_path, tapped=True)
+    try:
+        yield c
+    finally:
+        c.close()
 
 
 def test_that_a_command_from_the_host_moves_the_servos_and_then_keeps_them_moving(chain) -> None:  # type: ignore[no-untyped-def]
@@ -114,7 +242,7 @@ def test_that_a_command_from_the_host_moves_the_servos_and_then_keeps_them_movin
 
 def test_that_forged_replayed_and_foreign_datagrams_never_act(chain) -> None:  # type: ignore[no-untyped-def]
     uno, host, _, _ = chain
-    host.send(host.datagram(P.UdpType.COMMAND, struct.pack("<bb", 1, 1), key=os.urandom(32)))  # forged
+    host.send(host.datagram(P.UdpType.COMMAND, P.command_payload(1, 1), key=os.urandom(32)))  # forged
     time.sleep(0.2)
     assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=1)
     wire = host.command(-1, -1)
@@ -124,7 +252,10 @@ def test_that_forged_replayed_and_foreign_datagrams_never_act(chain) -> None:  #
     host.send(wire)  # replay of the (-1, -1) command
     time.sleep(0.25)
     assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=1)
-    telemetry = host.telemetry()
+    deadline = time.monotonic() + 3.0  # STATUS is asked for once a second: wait for one after arming
+    while not (telemetry := host.telemetry())["firmware_status"]["flags"] & 1:
+        assert time.monotonic() < deadline, telemetry
+        time.sleep(0.1)
     drops = telemetry["drops"]
     assert drops["unauthenticated"] == 1 and drops["replayed"] == 1
     assert telemetry["link_loss"] == 0.0
@@ -142,7 +273,7 @@ def test_that_too_frequent_commands_act_at_10_hz_with_the_latest_winning(chain) 
     uno.wait_for(NEUTRAL, 1000.5, timeout=0.3, tolerance=1.0)
     assert time.monotonic() - start >= 0.05  # waited for its slot
     assert not any(abs(e.width - 1000.5) < 1 and e.pin == 9 for e in uno.events_since(start))  # (-1,-1) never acted
-    assert host.telemetry()["drops"]["rate_limited"] == 1
+    assert host.telemetry()["rate_limited"]["COMMAND"] == 1
 
 
 def test_that_losing_the_host_for_a_second_stops_the_robot(chain) -> None:  # type: ignore[no-untyped-def]
@@ -180,7 +311,7 @@ def test_that_100000_random_and_mutated_datagrams_neither_crash_nor_actuate(chai
     uno, host, agent, _ = chain
     rng = random.Random(7)
     start = time.monotonic()
-    template = host.datagram(P.UdpType.COMMAND, struct.pack("<bb", 1, 1), counter=10**9)
+    template = host.datagram(P.UdpType.COMMAND, P.command_payload(1, 1), counter=10**9)
     for i in range(100_000):
         if i % 2:
             wire = bytes(rng.getrandbits(8) for _ in range(rng.randrange(0, 64)))
@@ -197,3 +328,153 @@ def test_that_100000_random_and_mutated_datagrams_neither_crash_nor_actuate(chai
     telemetry = host.telemetry()
     assert telemetry["command"] == [0, 0]
     assert sum(telemetry["drops"].values()) > 90_000  # counted, give or take kernel buffer overflows
+
+
+# --- regression tests named after the holes an independent client found -------------------
+def _frame(epoch: int, seq: int, mtype: int, payload: bytes) -> bytes:
+    return b"\x00" + P.encode_frame(P.Frame(epoch, seq, mtype, payload))
+
+
+def test_that_commands_captured_before_an_agent_restart_never_act_after_it(tmp_path: Path) -> None:
+    c = Chain(tmp_path)
+    try:
+        captured = [c.host.command(1, 1) for _ in range(10)]
+        c.uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+        c.host.command(0, 0)
+        c.uno.wait_for(NEUTRAL, NEUTRAL, timeout=0.5, tolerance=1.0)
+        c.stop_agent()
+        c.start_agent()  # a Pi reboot, or Restart=always after a crash: a new session
+        start = time.monotonic()
+        for wire in captured:
+            c.host.send(wire)
+            time.sleep(0.02)
+        time.sleep(0.4)
+        assert {round(e.width) for e in c.uno.events_since(start)} <= {1500, 1501}
+        assert c.host.telemetry()["drops"]["unauthenticated"] == 10
+        c.host.command(1, 0)  # the real host, re-handshaken, still drives the robot
+        c.uno.wait_for(2000.5, NEUTRAL, timeout=1.0, tolerance=1.0)
+    finally:
+        c.close()
+
+
+def test_that_a_reflected_telemetry_datagram_does_not_lock_the_host_out(chain) -> None:  # type: ignore[no-untyped-def]
+    uno, host, _, _ = chain
+    host.telemetry()
+    host.send(host.last_telemetry_wire)  # the agent's own reply, sent back to it
+    time.sleep(0.1)
+    host.command(1, 1)
+    uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+    assert host.telemetry()["drops"]["malformed"] == 1
+
+
+def test_that_an_unknown_error_code_from_the_serial_side_does_not_kill_the_agent(tapped: Chain) -> None:
+    epoch = tapped.host.telemetry()["epoch"]
+    tapped.tap.to_agent(_frame(epoch, 60_000, P.MsgType.ERROR, P.ErrorReport(0x42, 1).pack()))  # type: ignore[union-attr]
+    time.sleep(0.3)
+    assert tapped.agent is not None and tapped.agent.poll() is None
+    telemetry = tapped.host.telemetry()
+    assert telemetry["firmware_errors"].get("unknown_0x42") == 1
+    tapped.host.command(1, 1)
+    tapped.uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+
+
+def test_that_commands_at_50_hz_never_make_the_agent_declare_the_link_lost(chain) -> None:  # type: ignore[no-untyped-def]
+    uno, host, _, _ = chain
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        host.command(1, 1)
+        time.sleep(0.02)
+    telemetry = host.telemetry()
+    assert telemetry["reconnects"] == 0 and telemetry["serial_connected"]
+    assert telemetry["link_loss"] == 0.0
+    assert uno.resets == []  # the port was never reopened (which resets a real Uno)
+
+
+def test_that_a_stray_ready_with_another_epoch_does_not_lock_commands_out(tapped: Chain) -> None:
+    host = tapped.host
+    end = time.monotonic() + 2.0  # a session long enough that the seq is well past zero
+    while time.monotonic() < end:
+        host.command(1, 1)
+        time.sleep(0.05)
+    epoch = host.telemetry()["epoch"]
+    tapped.tap.to_agent(_frame((epoch + 7) & 0xFFFF, 0, P.MsgType.READY, P.Ready(1, 0, 1, 0).pack()))  # type: ignore[union-attr]
+    time.sleep(0.05)
+    host.command(-1, -1)
+    tapped.uno.wait_for(1000.5, 2000.5, timeout=1.0, tolerance=1.0)  # was a 20 s lock-out
+    assert host.telemetry()["epoch"] == epoch
+
+
+def test_that_an_agent_restarted_on_a_port_that_does_not_reset_the_uno_resynchronises(tmp_path: Path) -> None:
+    c = Chain(tmp_path)
+    try:
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            c.host.command(1, 1)
+            time.sleep(0.05)
+        c.stop_agent()
+        c.start_agent()  # seq restarts while the firmware (not reset by a pty) remembers its last one
+        c.host.command(-1, 0)
+        c.uno.wait_for(1000.5, NEUTRAL, timeout=1.5, tolerance=1.0)
+    finally:
+        c.close()
+
+
+def test_that_a_sender_id_flood_keeps_the_agent_state_bounded(chain) -> None:  # type: ignore[no-untyped-def]
+    uno, host, agent, _ = chain
+    for sender in range(1000, 41_000):  # a key holder inventing sender ids
+        host.send(host.datagram(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(0), sender=sender))
+        if sender % 500 == 0:
+            time.sleep(0.01)
+    time.sleep(0.5)
+    telemetry = host.telemetry()
+    assert telemetry["senders"] <= P.MAX_SENDERS and telemetry["senders_evicted"] > 30_000
+    assert agent.poll() is None
+    host.command(1, 1)
+    uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+
+
+def test_that_a_stop_flood_does_not_flood_the_serial_link(chain) -> None:  # type: ignore[no-untyped-def]
+    _, host, _, _ = chain
+    before = host.telemetry()
+    time.sleep(1.1)  # a STATUS with the counter at the start
+    ok0 = host.telemetry()["firmware_status"]["frames_ok"]
+    start = time.monotonic()
+    while time.monotonic() - start < 1.0:  # 1000 STOP/s
+        host.send(host.datagram(P.UdpType.STOP))
+        time.sleep(0.001)
+    time.sleep(1.1)
+    after = host.telemetry()
+    frames = after["firmware_status"]["frames_ok"] - ok0
+    # keepalive 10/s + ping 10/s + status 1/s over about 2.2 s, not 321 frames a second
+    assert frames < 80, frames
+    assert after["rate_limited"].get("STOP", 0) - before["rate_limited"].get("STOP", 0) > 300
+
+
+@pytest.mark.slow
+def test_that_random_and_mutated_serial_frames_never_kill_the_agent_nor_move_the_robot(tapped: Chain) -> None:
+    host, tap = tapped.host, tapped.tap
+    assert tap is not None
+    epoch = host.telemetry()["epoch"]
+    rng = random.Random(11)
+    templates = [_frame(epoch, 1, P.MsgType.PONG, P.token_payload(5)),
+                 _frame(epoch, 2, P.MsgType.STATUS, P.Status(1, 1, 1, 1, 1, 1, 1, 1, 1).pack()),
+                 _frame(epoch, 3, P.MsgType.ERROR, P.ErrorReport(7, 3).pack()),
+                 _frame(epoch, 4, P.MsgType.READY, P.Ready(1, 0, 1, 0).pack()),
+                 _frame(epoch, 5, P.MsgType.SET_SPEEDS, P.set_speeds_payload(1, 1))]  # wrong direction: an echo
+    start = time.monotonic()
+    for i in range(5000):
+        if i % 3 == 0:
+            blob = bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 40)))
+        else:
+            mutated = bytearray(rng.choice(templates))
+            for _ in range(rng.randrange(0, 3)):
+                mutated[rng.randrange(1, len(mutated) - 1)] = rng.getrandbits(8)
+            blob = bytes(mutated)
+        tap.to_agent(blob)
+        if i % 50 == 0:
+            time.sleep(0.01)
+    time.sleep(0.5)
+    assert tapped.agent is not None and tapped.agent.poll() is None
+    assert {round(e.width) for e in tapped.uno.events_since(start)} <= {1500, 1501}  # nobody commanded motion
+    host.command(0, 1)
+    tapped.uno.wait_for(NEUTRAL, 1000.5, timeout=2.0, tolerance=1.0)

@@ -8,10 +8,12 @@ import time
 
 import pytest
 
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.pi_agent import protocol as P
 
 from conftest import Link
-from emulator import EmulatedUno
+
+pytestmark = pytest.mark.hil
 
 NEUTRAL, FULL_FWD_RIGHT, FULL_FWD_LEFT = 1500.5, 2000.5, 1000.5  # left servo is mirrored
 
@@ -68,6 +70,19 @@ def test_that_a_reset_mid_run_is_neutral_until_a_new_valid_command(uno: Emulated
     assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
     link.speeds(-1, -1)
     uno.wait_for(NEUTRAL - 500, NEUTRAL + 500, timeout=0.1, tolerance=1.0)
+
+
+def test_that_the_emulated_clock_neither_jumps_nor_freezes_across_a_reset(uno: EmulatedUno, link: Link) -> None:
+    time.sleep(2.0)  # run a while first: a clock that counted these cycles twice would jump 2 s
+    before_us, wall = uno.sim_us, time.monotonic()
+    uno.reset()
+    deadline = time.monotonic() + 5
+    while not uno.resets:
+        assert time.monotonic() < deadline, "no reset reported"
+        time.sleep(0.01)
+    link.wait_ready(timeout=2.0)  # a frozen emulator would send nothing for as long as it had run
+    elapsed_us = uno.sim_us - before_us
+    assert 0 <= elapsed_us < 1e6 * (time.monotonic() - wall) + 200_000, (before_us, uno.sim_us)
 
 
 def test_that_trims_persist_in_eeprom_across_a_reset(uno: EmulatedUno, link: Link) -> None:

@@ -1,10 +1,13 @@
 """The host's end of the UDP link to the Pi agent (docs/protocol.md, "UDP link").
 
-Authenticated COMMAND and STOP datagrams out, TELEMETRY_REQUEST out and TELEMETRY back.
-The epoch is the host's wall-clock second at start and the counter starts at the
-nanosecond within that second, then rises by one per datagram. The agent accepts a
-restarted host (a later second, or later in the same second than any datagram the old
-one could have sent) and refuses replays.
+HELLO out and SESSION back (the agent's session id, from which the keys of both
+directions derive), then authenticated COMMAND and STOP datagrams out, TELEMETRY_REQUEST
+out and TELEMETRY back. The epoch is the host's wall-clock second at start and the
+counter starts at the nanosecond within that second, then rises by one per datagram. The
+agent accepts a restarted host (a later second, or later in the same second than any
+datagram the old one could have sent) and refuses replays. When the agent stops answering
+(it restarted, and has a new session id), :meth:`AgentClient.request_telemetry` says
+HELLO again; nothing is sent under a session the agent has not confirmed.
 """
 
 from __future__ import annotations
@@ -13,7 +16,6 @@ import json
 import os
 import random
 import socket
-import struct
 import time
 from pathlib import Path
 from typing import Any
@@ -58,7 +60,15 @@ def parse_address(text: str, default_port: int = P.DEFAULT_PORT) -> tuple[str, i
 
 
 class AgentClient:
-    """Sends commands to one agent and tracks whether it answers."""
+    """Sends commands to one agent and tracks whether it answers.
+
+    Commands go out only once the agent has told its session id (``session``): until
+    then :meth:`command` and :meth:`stop` send a HELLO instead (counted in ``unsent``),
+    which is what a robot with no host would do anyway: nothing.
+    """
+
+    HELLO_INTERVAL = 0.2  #: s between HELLOs while there is no answer
+    RESYNC_AFTER = 1.0  #: s without telemetry (while asking for it) before saying HELLO again
 
     def __init__(self, address: tuple[str, int], key: bytes, sender: int = 1) -> None:
         self.address, self.key, self.sender = address, key, sender
@@ -70,32 +80,79 @@ class AgentClient:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("0.0.0.0", 0))
         self.sock.setblocking(False)
+        self.keys: P.LinkKeys | None = None  #: keys of the agent's confirmed session
+        self._hello_keys = P.LinkKeys.derive(key, bytes(P.SESSION_SIZE))  # only .hello is used before a session
+        self._hello_nonce: int | None = None
+        self.last_hello_at = -1e9
         self.last_telemetry_at = -1e9  #: monotonic time of the last authenticated TELEMETRY
         self.last_telemetry: dict[str, Any] = {}
         self.last_request_at = -1e9
         self._nonce = 0
+        self._last_telemetry_counter: tuple[int, int] | None = None
         self.send_errors = 0
+        self.unsent = 0
+        self.sessions = 0  #: sessions adopted (more than one: the agent restarted)
+
+    @property
+    def session(self) -> bytes | None:
+        return None if self.keys is None else self.keys.session
 
     def _send(self, dtype: int, payload: bytes = b"") -> float:
+        keys = self._hello_keys if dtype == P.UdpType.HELLO else self.keys
+        if keys is None:
+            self.unsent += 1
+            self.hello()
+            return time.monotonic()
         self.counter += 1
-        wire = P.encode_datagram(P.Datagram(dtype, self.sender, self.epoch, self.counter, payload), self.key)
+        wire = P.encode_datagram(P.Datagram(dtype, self.sender, self.epoch, self.counter, payload), keys)
         try:
             self.sock.sendto(wire, self.address)
         except OSError:
             self.send_errors += 1  # e.g. no route while a cable is out: the watchdogs stop the robot
         return time.monotonic()
 
+    def hello(self) -> None:
+        """Ask the agent for its session id (rate-limited to one per HELLO_INTERVAL)."""
+        now = time.monotonic()
+        if now - self.last_hello_at < self.HELLO_INTERVAL:
+            return
+        self.last_hello_at = now
+        self._hello_nonce = random.getrandbits(64)
+        self._send(P.UdpType.HELLO, P.hello_payload(self._hello_nonce))
+
     def command(self, right: int, left: int) -> float:
         """Send a speed command; returns the monotonic time it left."""
-        return self._send(P.UdpType.COMMAND, struct.pack("<bb", right, left))
+        return self._send(P.UdpType.COMMAND, P.command_payload(right, left))
 
     def stop(self) -> float:
         return self._send(P.UdpType.STOP)
 
     def request_telemetry(self) -> None:
+        now = time.monotonic()
+        if self.keys is None or (now - self.last_telemetry_at > self.RESYNC_AFTER
+                                 and now - self.last_request_at < self.RESYNC_AFTER):
+            self.hello()  # no session yet, or requests go unanswered: the agent may have restarted
         self._nonce = random.getrandbits(32)
-        self.last_request_at = time.monotonic()
-        self._send(P.UdpType.TELEMETRY_REQUEST, struct.pack("<I", self._nonce))
+        self.last_request_at = now
+        if self.keys is not None:
+            self._send(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(self._nonce))
+
+    def _on_session(self, data: bytes) -> None:
+        session = P.peek_session(data)
+        if session is None or self._hello_nonce is None:
+            return
+        try:
+            d = P.decode_datagram(data, P.LinkKeys.derive(self.key, session), frozenset({P.UdpType.SESSION}))
+        except P.DatagramError:
+            return
+        nonce, confirmed = P.unpack_session(d.payload)
+        if nonce != self._hello_nonce:
+            return  # an answer to an older HELLO (or a replayed one)
+        self._hello_nonce = None
+        if confirmed != self.session:
+            self.keys = P.LinkKeys.derive(self.key, confirmed)
+            self.sessions += 1
+            self._last_telemetry_counter = None
 
     def poll(self) -> list[dict[str, Any]]:
         """Authenticated telemetry that arrived (others are ignored)."""
@@ -107,13 +164,21 @@ class AgentClient:
                 break
             if source[0] != self.address[0]:
                 continue
+            if P.peek_session(data) is not None:
+                self._on_session(data)
+                continue
+            if self.keys is None:
+                continue
             try:
-                d = P.decode_datagram(data, self.key)
+                d = P.decode_datagram(data, self.keys, frozenset({P.UdpType.TELEMETRY}))
                 body = json.loads(d.payload)
             except (P.DatagramError, json.JSONDecodeError, UnicodeDecodeError):
                 continue
-            if d.type != P.UdpType.TELEMETRY or not isinstance(body, dict):
-                continue
+            stamp = (d.epoch, d.counter)
+            if not isinstance(body, dict) or (self._last_telemetry_counter is not None
+                                              and stamp <= self._last_telemetry_counter):
+                continue  # not an object, or a replay of older telemetry
+            self._last_telemetry_counter = stamp
             self.last_telemetry_at = time.monotonic()
             self.last_telemetry = body
             out.append(body)

@@ -18,7 +18,6 @@ pure-simulation evaluation from the same start points (:func:`consistency`).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
@@ -53,15 +52,16 @@ class TwinError(TumblebotError):
 
 
 def _emulator() -> Any:
-    path = REPO / "hil_tests" / "emulator.py"
-    if not path.exists():
-        raise TwinError("tumblebot twin runs the firmware from a source checkout (hil_tests/emulator.py is missing)")
-    spec = importlib.util.spec_from_file_location("tumblebot_twin_emulator", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    try:
+        import serial  # noqa: F401  (the emulator and the agent need pyserial)
+    except ModuleNotFoundError:
+        raise TwinError("the twin runs the Pi agent and the emulated firmware: install tumblebot[agent] "
+                        "(pyserial) as well as tumblebot[host]") from None
+    from tumblebot.host import emulator
+
+    if not (REPO / "firmware" / "arduino" / "Makefile").exists():
+        raise TwinError("the twin builds the firmware from a source checkout; this install has none")
+    return emulator
 
 
 def pulse_to_command(width: float | None, mounting: float) -> float:

@@ -4,18 +4,27 @@ Run ``tumblebot-agent --config /etc/tumblebot/agent.toml``. Needs pyserial and t
 standard library only. Behaviour (docs/protocol.md has the wire formats):
 
 * binds to the configured address and port only, and takes datagrams from the allowed
-  host only; every datagram is authenticated (HMAC-SHA256) before anything else;
+  host only; every datagram is authenticated (HMAC-SHA256) before anything else, under
+  keys derived for this agent session and for the host → agent direction, so neither
+  datagrams captured before a restart nor the agent's own telemetry reflected back act;
+* draws a fresh random session id at start and tells it to a host that sends HELLO;
 * acts on at most 10 commands per second: a command arriving sooner is held and the
-  latest one wins at the next slot;
+  latest one wins at the next slot; a STOP acts at once unless the robot is already
+  stopped (then it is dropped as rate-limited);
 * resends the current command to the Arduino every 100 ms (the firmware's watchdog
-  stops the servos 250 ms after the last one);
-* commands stop when no valid datagram has arrived from the host for 1 s;
-* after opening the port (which resets an Uno) it waits for READY, adopts the boot
-  epoch, and restarts its sequence numbers whenever the epoch changes;
-* a serial device that errors, or that answers no PING for 1 s, is closed and reopened
-  with back-off (0.25 s doubling to 4 s);
-* answers TELEMETRY_REQUEST with a JSON telemetry datagram: link loss over the last 100
-  pings, datagram drops by reason, round-trip times, the firmware's last STATUS.
+  stops the servos 250 ms after the last one) and PINGs it every 100 ms, whatever the
+  command rate;
+* commands stop when no valid session datagram has arrived from the host for 1 s;
+* after opening the port (which resets an Uno) it waits for READY and adopts the boot
+  epoch; any later firmware frame with another epoch is adopted as the live one. Its
+  sequence numbers keep rising across epochs (a booted firmware takes any first seq), and
+  an OLD_SEQUENCE error makes them jump ahead by a quarter of the circle;
+* a serial device that errors, or that sends no frame at all for 1 s, is closed and
+  reopened with back-off (0.25 s doubling to 4 s); no serial input ever ends the agent
+  (frames it cannot use are counted in ``serial_drops``);
+* answers TELEMETRY_REQUEST (at most 20 a second) with a JSON telemetry datagram: link
+  loss over the last 100 pings, datagram drops by reason, round-trip times, the
+  firmware's last STATUS.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import argparse
 import collections
 import json
 import logging
+import os
 import select
 import socket
 import stat
@@ -42,10 +52,15 @@ log = logging.getLogger("tumblebot.agent")
 
 COMMAND_INTERVAL = 0.1  #: s, at most 10 commands per second
 KEEPALIVE_INTERVAL = 0.1  #: s, resend the current command to the Arduino
+PING_INTERVAL = 0.1  #: s between PINGs, whatever the command rate
 STATUS_INTERVAL = 1.0  #: s, ask the Arduino for its STATUS (reported in telemetry)
+TELEMETRY_INTERVAL = 0.05  #: s, at most 20 telemetry replies per second
+SESSION_INTERVAL = 0.2  #: s, at most 5 SESSION replies per second
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
 SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
+SEQ_JUMP = 0x4000  #: how far the sequence jumps on OLD_SEQUENCE (at most three jumps get past any last seq)
 READY_TIMEOUT = 3.0  #: s to wait for READY after opening the port
+PROBE_AFTER = 0.6  #: s without READY before probing for the epoch (a port that does not reset the Uno)
 BACKOFF_MIN, BACKOFF_MAX = 0.25, 4.0  #: s, reconnect back-off
 
 
@@ -130,6 +145,9 @@ class SerialLink:
         self.status: P.Status | None = None
         self.reconnects = 0
         self.errors_reported: collections.Counter[str] = collections.Counter()
+        self.drops: collections.Counter[str] = collections.Counter()  #: serial frames not used, by reason
+        self.jumped_at: int | None = None  #: first seq sent after the last OLD_SEQUENCE jump
+        self.last_probe = -1e9
 
     @property
     def ready(self) -> bool:
@@ -148,9 +166,15 @@ class SerialLink:
             return
         if data:
             for frame in self.decoder.feed(data):
-                self._on_frame(frame, now)
+                try:
+                    self._on_frame(frame, now)
+                except (P.ProtocolError, struct.error, ValueError) as exc:  # never die on serial input
+                    log.debug("unusable frame %r: %s", frame, exc)
+                    self.drops["unusable"] += 1
         if self.epoch is None and now - self.opened_at > READY_TIMEOUT:
             self._lost(now, "no READY after opening the port")
+        elif self.epoch is None and now - self.opened_at > PROBE_AFTER and now - self.last_probe >= PROBE_AFTER:
+            self._probe(now)
         elif self.epoch is not None and now - self.last_rx > SERIAL_SILENCE:
             self._lost(now, f"no frame from the Arduino for {SERIAL_SILENCE} s")
 
@@ -167,6 +191,17 @@ class SerialLink:
         self.epoch = None
         self.opened_at = self.last_rx = now
 
+    def _probe(self, now: float) -> None:
+        """No READY: the Arduino did not reset when the port opened (it already heard an
+        agent). A GET_STATUS with a guessed epoch is answered with STATUS or an ERROR,
+        either of which carries the live epoch in its header."""
+        self.last_probe = now
+        self.seq = (self.seq + 1) & 0xFFFF
+        try:
+            self.port.write(b"\x00" + P.encode_frame(P.Frame(0, self.seq, P.MsgType.GET_STATUS)))
+        except OSError as exc:
+            self._lost(now, f"write failed: {exc}")
+
     def _lost(self, now: float, why: str) -> None:
         log.warning("serial link lost: %s", why)
         try:
@@ -181,20 +216,21 @@ class SerialLink:
         self.backoff = min(self.backoff * 2, BACKOFF_MAX)
 
     def _on_frame(self, frame: P.Frame, now: float) -> None:
+        if frame.type < 0x80:  # an agent -> firmware type on the way in: an echo, never ours
+            self.drops["wrong_direction"] += 1
+            return
         self.last_rx = now
-        if frame.type == P.MsgType.READY:
-            if frame.epoch != self.epoch:
-                log.info("firmware READY, epoch %d (protocol %d, firmware %d.%d.%d)", frame.epoch, *frame.payload)
-                self.epoch = frame.epoch
-                self.seq = 0  # a new boot: our sequence numbers start over
-            self.backoff = BACKOFF_MIN
-        elif frame.epoch != self.epoch:
+        if frame.epoch != self.epoch:
             if self.epoch is not None:
-                log.warning("frame from epoch %d while in %d: the Arduino rebooted", frame.epoch, self.epoch)
-            self.epoch = frame.epoch  # ERROR/STATUS replies tell us the live epoch too
-            self.seq = 0
-        if frame.type == P.MsgType.PONG:
-            (token,) = struct.unpack("<I", frame.payload)
+                log.warning("frame from epoch %d while in %d: adopting it (the Arduino rebooted)",
+                            frame.epoch, self.epoch)
+            else:
+                log.info("firmware epoch %d", frame.epoch)
+            self.epoch = frame.epoch  # READY, and every reply, carries the live epoch
+        if frame.type == P.MsgType.READY:
+            self.backoff = BACKOFF_MIN
+        elif frame.type == P.MsgType.PONG:
+            token = P.unpack_token(frame.payload)
             for i, (t, sent, _) in enumerate(self.pings):
                 if t == token:
                     self.pings[i] = (t, sent, now - sent)
@@ -202,7 +238,19 @@ class SerialLink:
         elif frame.type == P.MsgType.STATUS:
             self.status = P.Status.unpack(frame.payload)
         elif frame.type == P.MsgType.ERROR:
-            self.errors_reported[P.ErrorCode(frame.payload[0]).name] += 1
+            report = P.ErrorReport.unpack(frame.payload)
+            self.errors_reported[report.name] += 1
+            if report.code == P.ErrorCode.OLD_SEQUENCE:
+                self._resync(report.seq)
+
+    def _resync(self, refused: int) -> None:
+        """Our seq is behind the firmware's last accepted one (the agent restarted on a
+        port that does not reset the Arduino): jump ahead, once per round of refusals."""
+        if self.jumped_at is not None and not (refused == self.jumped_at or P.newer(refused, self.jumped_at)):
+            return  # refused before the last jump took effect
+        self.seq = (self.seq + SEQ_JUMP) & 0xFFFF
+        self.jumped_at = (self.seq + 1) & 0xFFFF
+        log.warning("firmware refused seq %d as old: jumping to %d", refused, self.jumped_at)
 
     def send(self, mtype: P.MsgType, payload: bytes, now: float) -> bool:
         if not self.ready:
@@ -222,7 +270,7 @@ class SerialLink:
 
     def ping(self, now: float) -> None:
         self.ping_token = (self.ping_token + 1) & 0xFFFFFFFF
-        if self.send(P.MsgType.PING, struct.pack("<I", self.ping_token), now):
+        if self.send(P.MsgType.PING, P.token_payload(self.ping_token), now):
             self.pings.append((self.ping_token, now, None))
 
     def telemetry(self, now: float) -> dict[str, Any]:
@@ -236,6 +284,8 @@ class SerialLink:
             "rtt_ms": {"median": 1e3 * rtts[len(rtts) // 2], "max": 1e3 * rtts[-1]} if rtts else None,
             "reconnects": self.reconnects,
             "firmware_errors": dict(self.errors_reported),
+            "serial_drops": {**{k.name: v for k, v in self.decoder.errors.items() if v and k != P.ErrorCode.OK},
+                             **self.drops},
             "firmware_status": asdict(self.status) if self.status else None,
         }
 
@@ -249,8 +299,11 @@ class Agent:
         self.sock.bind((config.bind_address, config.bind_port))
         self.sock.setblocking(False)
         self.link = SerialLink(config.serial_port, config.baud, serial_factory)
+        self.session = os.urandom(P.SESSION_SIZE)  #: fresh at every start: old datagrams never verify
+        self.keys = P.LinkKeys.derive(key, self.session)
         self.guard = P.ReplayGuard()
         self.drops: collections.Counter[str] = collections.Counter()
+        self.rate_limited: collections.Counter[str] = collections.Counter()  #: rate_limited drops by type
         self.accepted = 0
         self.command = (0, 0)  #: what the Arduino is being told
         self.pending: tuple[int, int] | None = None
@@ -258,25 +311,38 @@ class Agent:
         self.last_valid = -1e9
         self.last_keepalive = -1e9
         self.last_status_request = -1e9
-        self.telemetry_counter = 0
-        self.epoch = int(time.time())
+        self.last_ping = -1e9
+        self.last_telemetry = -1e9
+        self.last_session_reply = -1e9
+        now_ns = time.time_ns()
+        self.epoch = now_ns // 1_000_000_000
+        self.telemetry_counter = now_ns % 1_000_000_000
 
     @property
     def address(self) -> tuple[str, int]:
         host, port = self.sock.getsockname()
         return host, port
 
-    def _drop(self, reason: P.DropReason) -> None:
+    def _drop(self, reason: P.DropReason, dtype: int | None = None) -> None:
         self.drops[reason.value] += 1
+        if reason is P.DropReason.RATE_LIMITED and dtype is not None:
+            self.rate_limited[P.UdpType(dtype).name] += 1
 
     def handle_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         if source[0] != self.config.allowed_host:
             self._drop(P.DropReason.FOREIGN_HOST)
             return
         try:
-            d = P.decode_datagram(data, self.key)
+            d = P.decode_datagram(data, self.keys, P.TO_AGENT)
         except P.DatagramError as exc:
             self._drop(exc.code)
+            return
+        if d.type == P.UdpType.HELLO:  # not session-bound, so it proves nothing: answer, rate-limited
+            if now - self.last_session_reply < SESSION_INTERVAL:
+                self._drop(P.DropReason.RATE_LIMITED, d.type)
+                return
+            self.last_session_reply = now
+            self._reply(P.UdpType.SESSION, P.session_payload(P.unpack_hello(d.payload), self.session), source)
             return
         reason = self.guard.check(d)
         if reason is not None:
@@ -285,15 +351,21 @@ class Agent:
         self.accepted += 1
         self.last_valid = now
         if d.type == P.UdpType.COMMAND:
-            right, left = struct.unpack("<bb", d.payload)
             if self.pending is not None:
-                self._drop(P.DropReason.RATE_LIMITED)  # superseded before it acted
-            self.pending = (right, left)
+                self._drop(P.DropReason.RATE_LIMITED, d.type)  # superseded before it acted
+            self.pending = P.unpack_command(d.payload)
         elif d.type == P.UdpType.STOP:
             self.pending = None
-            self._apply((0, 0), now)  # a stop never waits for a slot
+            if self.command == (0, 0):
+                self._drop(P.DropReason.RATE_LIMITED, d.type)  # already stopped: the keepalive repeats it
+            else:
+                self._apply((0, 0), now)  # a stop never waits for a slot
         elif d.type == P.UdpType.TELEMETRY_REQUEST:
-            self._send_telemetry(source, d.payload, now)
+            if now - self.last_telemetry < TELEMETRY_INTERVAL:
+                self._drop(P.DropReason.RATE_LIMITED, d.type)
+                return
+            self.last_telemetry = now
+            self._send_telemetry(source, P.unpack_nonce(d.payload), now)
 
     def _apply(self, command: tuple[int, int], now: float) -> None:
         self.command = command
@@ -301,16 +373,20 @@ class Agent:
         self.link.send_speeds(*command, now)
         self.last_keepalive = now
 
-    def _send_telemetry(self, dest: tuple[str, int], nonce: bytes, now: float) -> None:
-        body = {"nonce": struct.unpack("<I", nonce)[0], "command": list(self.command),
-                "accepted": self.accepted, "drops": dict(self.drops), **self.link.telemetry(now)}
+    def _reply(self, dtype: P.UdpType, payload: bytes, dest: tuple[str, int]) -> None:
         self.telemetry_counter += 1
-        payload = json.dumps(body, separators=(",", ":")).encode()
-        dgram = P.Datagram(P.UdpType.TELEMETRY, self.config.agent_id, self.epoch, self.telemetry_counter, payload)
+        dgram = P.Datagram(dtype, self.config.agent_id, self.epoch, self.telemetry_counter, payload)
         try:
-            self.sock.sendto(P.encode_datagram(dgram, self.key), dest)
+            self.sock.sendto(P.encode_datagram(dgram, self.keys), dest)
         except (OSError, P.DatagramError) as exc:
-            log.warning("cannot send telemetry: %s", exc)
+            log.warning("cannot send %s: %s", dtype.name, exc)
+
+    def _send_telemetry(self, dest: tuple[str, int], nonce: int, now: float) -> None:
+        body = {"nonce": nonce, "command": list(self.command), "accepted": self.accepted,
+                "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
+                "senders": len(self.guard), "senders_evicted": self.guard.evicted,
+                **self.link.telemetry(now)}
+        self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
 
     def step(self, timeout: float = 0.01) -> None:
         readable, _, _ = select.select([self.sock], [], [], timeout)
@@ -333,6 +409,8 @@ class Agent:
         if now - self.last_keepalive >= KEEPALIVE_INTERVAL:
             self.last_keepalive = now
             self.link.send_speeds(*self.command, now)
+        if now - self.last_ping >= PING_INTERVAL:  # liveness never depends on the command rate
+            self.last_ping = now
             self.link.ping(now)
         if now - self.last_status_request >= STATUS_INTERVAL and self.link.ready:
             self.last_status_request = now

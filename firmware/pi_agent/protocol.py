@@ -5,7 +5,8 @@ Two links:
 * **serial** (agent ↔ Arduino): COBS-framed, 0x00-delimited frames carrying a version,
   the firmware's boot epoch, a sequence number, a message and a CRC-16/MCRF4XX;
 * **UDP** (host → agent, and telemetry back): datagrams authenticated with a truncated
-  HMAC-SHA256, carrying a sender id, a session epoch and a strictly increasing counter.
+  HMAC-SHA256 under keys derived per direction and per agent session (:class:`LinkKeys`),
+  carrying a sender id, a sender epoch and a strictly increasing counter.
 
 This module imports nothing of tumblebot's and only the standard library, so the Pi
 agent (and anything else) can use it alone. The C++ twin is
@@ -15,6 +16,7 @@ agent (and anything else) can use it alone. The C++ twin is
 
 from __future__ import annotations
 
+import collections
 import enum
 import hashlib
 import hmac
@@ -229,11 +231,99 @@ def newer(seq: int, last: int) -> bool:
     return 0 < delta < 0x8000
 
 
-# payload helpers --------------------------------------------------------------------------
+# Serial payloads: every one is packed and unpacked here, nowhere else -------------------
+SET_SPEEDS_STRUCT = struct.Struct("<bb")
+TOKEN_STRUCT = struct.Struct("<I")
+READY_STRUCT = struct.Struct("<BBBB")
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    """One row of the serial message table."""
+
+    type: MsgType
+    direction: str  #: "to_firmware" (agent → Arduino) or "to_agent" (Arduino → agent)
+    size: int  #: exact payload size, bytes
+
+
+#: The serial message table (docs/protocol.md, "Messages"); the C++ twin is
+#: ``tumble::payloadSize`` / ``tumble::isForFirmware`` in tumble_proto.h.
+MESSAGES: dict[MsgType, MessageSpec] = {m.type: m for m in (
+    MessageSpec(MsgType.SET_SPEEDS, "to_firmware", SET_SPEEDS_STRUCT.size),
+    MessageSpec(MsgType.PING, "to_firmware", TOKEN_STRUCT.size),
+    MessageSpec(MsgType.SET_TRIM, "to_firmware", TRIM_STRUCT.size),
+    MessageSpec(MsgType.GET_STATUS, "to_firmware", 0),
+    MessageSpec(MsgType.READY, "to_agent", READY_STRUCT.size),
+    MessageSpec(MsgType.PONG, "to_agent", TOKEN_STRUCT.size),
+    MessageSpec(MsgType.STATUS, "to_agent", STATUS_STRUCT.size),
+    MessageSpec(MsgType.ERROR, "to_agent", ERROR_STRUCT.size),
+)}
+assert all(PAYLOAD_SIZES[t] == m.size for t, m in MESSAGES.items())
+
+
 def set_speeds_payload(right: int, left: int) -> bytes:
     if right not in (-1, 0, 1) or left not in (-1, 0, 1):
         raise FrameError(ErrorCode.BAD_PAYLOAD, f"speeds ({right}, {left}) must each be -1, 0 or +1")
-    return struct.pack("<bb", right, left)
+    return SET_SPEEDS_STRUCT.pack(right, left)
+
+
+def unpack_speeds(payload: bytes) -> tuple[int, int]:
+    right, left = SET_SPEEDS_STRUCT.unpack(payload)
+    return int(right), int(left)
+
+
+def token_payload(token: int) -> bytes:
+    """PING and PONG payload."""
+    return TOKEN_STRUCT.pack(token & 0xFFFFFFFF)
+
+
+def unpack_token(payload: bytes) -> int:
+    return int(TOKEN_STRUCT.unpack(payload)[0])
+
+
+def trim_payload(servo: int, neutral_us: int, direction: int) -> bytes:
+    return TRIM_STRUCT.pack(servo, neutral_us, direction)
+
+
+@dataclass(frozen=True)
+class Ready:
+    """READY payload: the firmware's protocol and version."""
+
+    protocol: int
+    major: int
+    minor: int
+    patch: int
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Ready:
+        return cls(*READY_STRUCT.unpack(payload))
+
+    def pack(self) -> bytes:
+        return READY_STRUCT.pack(self.protocol, self.major, self.minor, self.patch)
+
+
+@dataclass(frozen=True)
+class ErrorReport:
+    """ERROR payload. ``code`` may be one this side does not know (a newer firmware):
+    it is kept as a number and named ``unknown_0xNN``."""
+
+    code: int
+    seq: int
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> ErrorReport:
+        code, seq = ERROR_STRUCT.unpack(payload)
+        return cls(int(code), int(seq))
+
+    def pack(self) -> bytes:
+        return ERROR_STRUCT.pack(self.code, self.seq)
+
+    @property
+    def name(self) -> str:
+        try:
+            return ErrorCode(self.code).name
+        except ValueError:
+            return f"unknown_0x{self.code:02x}"
 
 
 @dataclass(frozen=True)
@@ -246,7 +336,7 @@ class Status:
     flags: int  #: bit 0 armed (a valid command since boot), bit 1 watchdog holding neutral
     frames_ok: int
     crc_errors: int
-    other_drops: int
+    other_drops: int  #: every refused frame but CRC errors (COBS, length, version, epoch, seq, type, payload)
     watchdog_trips: int
     last_seq: int
 
@@ -261,31 +351,51 @@ class Status:
 
 # ------------------------------------------------------------------------------ UDP link
 UDP_MAGIC = b"TB"
+UDP_VERSION = 2  #: 2: keys derived per direction and per agent session (docs/protocol.md)
 UDP_HEADER = struct.Struct("<2sBBIIQ")  # magic, version, type, sender, epoch, counter
 UDP_HEADER_SIZE = UDP_HEADER.size  # 20
 MAC_SIZE = 16  #: HMAC-SHA256 truncated to 128 bits
 MAX_DATAGRAM = 1024
 KEY_SIZE = 32
+SESSION_SIZE = 8
 DEFAULT_PORT = 47800
+COMMAND_STRUCT = struct.Struct("<bb")
+NONCE_STRUCT = struct.Struct("<I")
+HELLO_STRUCT = struct.Struct("<Q")
+SESSION_STRUCT = struct.Struct("<Q8s")  # the HELLO's nonce, the agent's session id
 
 
 class UdpType(enum.IntEnum):
+    """Datagram types. Host → agent below 0x80, agent → host from 0x80."""
+
     COMMAND = 0x10  #: payload: right i8, left i8 (−1, 0, +1)
     STOP = 0x11  #: no payload
     TELEMETRY_REQUEST = 0x12  #: payload: nonce u32
-    TELEMETRY = 0x90  #: agent → host, payload: UTF-8 JSON object
+    HELLO = 0x13  #: payload: nonce u64; asks for the agent's session id
+    TELEMETRY = 0x90  #: payload: UTF-8 JSON object
+    SESSION = 0x91  #: payload: the HELLO's nonce u64, session id 8 bytes
+
+
+#: Exact payload sizes (None: any size up to the datagram limit).
+UDP_PAYLOAD_SIZES: dict[UdpType, int | None] = {
+    UdpType.COMMAND: COMMAND_STRUCT.size, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: NONCE_STRUCT.size,
+    UdpType.HELLO: HELLO_STRUCT.size, UdpType.TELEMETRY: None, UdpType.SESSION: SESSION_STRUCT.size,
+}
+TO_AGENT: frozenset[UdpType] = frozenset(t for t in UdpType if t < 0x80)
+TO_HOST: frozenset[UdpType] = frozenset(t for t in UdpType if t >= 0x80)
 
 
 class DropReason(enum.Enum):
-    """Why the agent dropped a datagram (counted per reason)."""
+    """Why a receiver dropped a datagram (counted per reason)."""
 
-    MALFORMED = "malformed"  #: too short/long, bad magic or version
-    UNAUTHENTICATED = "unauthenticated"  #: MAC mismatch (checked first, in constant time)
-    REPLAYED = "replayed"  #: counter not above the last one seen for this sender and epoch
+    FOREIGN_HOST = "foreign_host"  #: from an address other than the allowed host (checked first)
+    #: bad size, magic or version; a type unknown or not meant for this receiver; a payload of the wrong size
+    MALFORMED = "malformed"
+    UNAUTHENTICATED = "unauthenticated"  #: MAC mismatch under the key of this direction and session (constant time)
+    OUT_OF_RANGE = "out_of_range"  #: payload values outside their range
     STALE = "stale"  #: an epoch older than the newest seen from this sender
-    OUT_OF_RANGE = "out_of_range"  #: unknown type or payload values outside their range
-    FOREIGN_HOST = "foreign_host"  #: from an address other than the allowed host
-    RATE_LIMITED = "rate_limited"  #: superseded by a newer command within the 100 ms slot
+    REPLAYED = "replayed"  #: counter not above the last one seen for this sender and epoch
+    RATE_LIMITED = "rate_limited"  #: over a message type's rate limit, or superseded within the 100 ms slot
 
 
 class DatagramError(ProtocolError):
@@ -303,53 +413,139 @@ class Datagram:
     epoch: int
     counter: int
     payload: bytes = b""
-    version: int = PROTOCOL_VERSION
+    version: int = UDP_VERSION
 
 
-def _mac(key: bytes, data: bytes) -> bytes:
-    return hmac.new(key, data, hashlib.sha256).digest()[:MAC_SIZE]
+def _hmac(key: bytes, data: bytes) -> bytes:
+    return hmac.new(key, data, hashlib.sha256).digest()
 
 
-def encode_datagram(datagram: Datagram, key: bytes) -> bytes:
-    if len(key) != KEY_SIZE:
-        raise ValueError(f"the shared key must be {KEY_SIZE} bytes, not {len(key)}")
+@dataclass(frozen=True)
+class LinkKeys:
+    """The keys of one agent session, derived from the shared key (HKDF-style labels):
+
+    * ``hello``: HMAC(K, "tumblebot/2 hello"), for HELLO only (there is no session yet);
+    * ``to_agent``: HMAC(K, "tumblebot/2 host->agent" ‖ session), every other host → agent type;
+    * ``to_host``: HMAC(K, "tumblebot/2 agent->host" ‖ session), every agent → host type.
+
+    A datagram of one direction never verifies in the other (no reflection), and one
+    from another agent session never verifies in this one (no replay after a restart).
+    """
+
+    hello: bytes
+    to_agent: bytes
+    to_host: bytes
+    session: bytes
+
+    @classmethod
+    def derive(cls, key: bytes, session: bytes) -> LinkKeys:
+        if len(key) != KEY_SIZE:
+            raise ValueError(f"the shared key must be {KEY_SIZE} bytes, not {len(key)}")
+        if len(session) != SESSION_SIZE:
+            raise ValueError(f"a session id is {SESSION_SIZE} bytes, not {len(session)}")
+        return cls(_hmac(key, b"tumblebot/2 hello"), _hmac(key, b"tumblebot/2 host->agent" + session),
+                   _hmac(key, b"tumblebot/2 agent->host" + session), session)
+
+    def for_type(self, dtype: int) -> bytes:
+        if dtype == UdpType.HELLO:
+            return self.hello
+        return self.to_host if dtype >= 0x80 else self.to_agent
+
+
+def encode_datagram(datagram: Datagram, keys: LinkKeys) -> bytes:
     body = UDP_HEADER.pack(UDP_MAGIC, datagram.version, datagram.type, datagram.sender, datagram.epoch,
                            datagram.counter) + datagram.payload
     if len(body) + MAC_SIZE > MAX_DATAGRAM:
         raise DatagramError(DropReason.MALFORMED, "datagram too long")
-    return body + _mac(key, body)
+    return body + _hmac(keys.for_type(datagram.type), body)[:MAC_SIZE]
 
 
-def decode_datagram(data: bytes, key: bytes) -> Datagram:
-    """Check size, magic, version and MAC (constant time, before anything else is
-    trusted), then the type and payload. Replay policy is :class:`ReplayGuard`'s."""
+def decode_datagram(data: bytes, keys: LinkKeys, accept: frozenset[UdpType]) -> Datagram:
+    """Check, in this order: size, magic and version, that the type is one of ``accept``
+    (the types meant for this receiver), the MAC under that type's key (constant time,
+    before anything else is trusted), the payload size and the payload ranges. Replay
+    policy is :class:`ReplayGuard`'s; the source address is the caller's."""
     if not UDP_HEADER_SIZE + MAC_SIZE <= len(data) <= MAX_DATAGRAM:
         raise DatagramError(DropReason.MALFORMED, f"datagram of {len(data)} bytes")
     body, tag = data[:-MAC_SIZE], data[-MAC_SIZE:]
-    if not hmac.compare_digest(_mac(key, body), tag):
-        raise DatagramError(DropReason.UNAUTHENTICATED, "MAC mismatch")
     magic, version, dtype, sender, epoch, counter = UDP_HEADER.unpack_from(body)
-    if magic != UDP_MAGIC or version != PROTOCOL_VERSION:
+    if magic != UDP_MAGIC or version != UDP_VERSION:
         raise DatagramError(DropReason.MALFORMED, f"magic {magic!r} version {version}")
-    payload = body[UDP_HEADER_SIZE:]
-    try:
-        kind = UdpType(dtype)
-    except ValueError:
-        raise DatagramError(DropReason.OUT_OF_RANGE, f"unknown datagram type 0x{dtype:02x}") from None
-    sizes = {UdpType.COMMAND: 2, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: 4}
-    if kind in sizes and len(payload) != sizes[kind]:
-        raise DatagramError(DropReason.OUT_OF_RANGE, f"{kind.name} payload of {len(payload)} bytes")
-    if kind is UdpType.COMMAND and any(v not in (-1, 0, 1) for v in struct.unpack("<bb", payload)):
+    if dtype not in accept:
+        raise DatagramError(DropReason.MALFORMED, f"datagram type 0x{dtype:02x} is not for this receiver")
+    kind = UdpType(dtype)
+    if not hmac.compare_digest(_hmac(keys.for_type(kind), body)[:MAC_SIZE], tag):
+        raise DatagramError(DropReason.UNAUTHENTICATED, "MAC mismatch")
+    payload = bytes(body[UDP_HEADER_SIZE:])
+    size = UDP_PAYLOAD_SIZES[kind]
+    if size is not None and len(payload) != size:
+        raise DatagramError(DropReason.MALFORMED, f"{kind.name} payload of {len(payload)} bytes, expected {size}")
+    if kind is UdpType.COMMAND and any(v not in (-1, 0, 1) for v in COMMAND_STRUCT.unpack(payload)):
         raise DatagramError(DropReason.OUT_OF_RANGE, "speeds must be -1, 0 or +1")
-    return Datagram(dtype, sender, epoch, counter, bytes(payload), version)
+    return Datagram(dtype, sender, epoch, counter, payload, version)
+
+
+def command_payload(right: int, left: int) -> bytes:
+    if right not in (-1, 0, 1) or left not in (-1, 0, 1):
+        raise DatagramError(DropReason.OUT_OF_RANGE, f"speeds ({right}, {left}) must each be -1, 0 or +1")
+    return COMMAND_STRUCT.pack(right, left)
+
+
+def unpack_command(payload: bytes) -> tuple[int, int]:
+    right, left = COMMAND_STRUCT.unpack(payload)
+    return int(right), int(left)
+
+
+def nonce_payload(nonce: int) -> bytes:
+    """TELEMETRY_REQUEST payload."""
+    return NONCE_STRUCT.pack(nonce & 0xFFFFFFFF)
+
+
+def unpack_nonce(payload: bytes) -> int:
+    return int(NONCE_STRUCT.unpack(payload)[0])
+
+
+def hello_payload(nonce: int) -> bytes:
+    return HELLO_STRUCT.pack(nonce & 0xFFFFFFFFFFFFFFFF)
+
+
+def unpack_hello(payload: bytes) -> int:
+    return int(HELLO_STRUCT.unpack(payload)[0])
+
+
+def session_payload(nonce: int, session: bytes) -> bytes:
+    return SESSION_STRUCT.pack(nonce & 0xFFFFFFFFFFFFFFFF, session)
+
+
+def unpack_session(payload: bytes) -> tuple[int, bytes]:
+    nonce, session = SESSION_STRUCT.unpack(payload)
+    return int(nonce), bytes(session)
+
+
+def peek_session(data: bytes) -> bytes | None:
+    """The session id a SESSION datagram claims, read *before* its MAC can be checked
+    (its key derives from that id); ``None`` if ``data`` is not shaped like one."""
+    if len(data) != UDP_HEADER_SIZE + SESSION_STRUCT.size + MAC_SIZE:
+        return None
+    magic, version, dtype, *_ = UDP_HEADER.unpack_from(data)
+    if magic != UDP_MAGIC or version != UDP_VERSION or dtype != UdpType.SESSION:
+        return None
+    return bytes(data[UDP_HEADER_SIZE + 8:UDP_HEADER_SIZE + 16])
+
+
+MAX_SENDERS = 32  #: replay state is kept for this many sender ids; the least recently accepted is evicted
 
 
 class ReplayGuard:
-    """Per sender: the newest epoch and the highest counter in it. Call :meth:`check`
-    only on datagrams whose MAC verified; it updates state only when it accepts."""
+    """Per sender: the newest epoch and the highest counter in it, for at most
+    :data:`MAX_SENDERS` senders (least recently accepted evicted first; ``evicted``
+    counts them). Call :meth:`check` only on datagrams whose MAC verified; it updates
+    state only when it accepts."""
 
-    def __init__(self) -> None:
-        self._state: dict[int, tuple[int, int]] = {}
+    def __init__(self, max_senders: int = MAX_SENDERS) -> None:
+        self._state: collections.OrderedDict[int, tuple[int, int]] = collections.OrderedDict()
+        self.max_senders = max_senders
+        self.evicted = 0
 
     def check(self, d: Datagram) -> DropReason | None:
         last = self._state.get(d.sender)
@@ -360,4 +556,11 @@ class ReplayGuard:
             if d.epoch == epoch and d.counter <= counter:
                 return DropReason.REPLAYED
         self._state[d.sender] = (d.epoch, d.counter)
+        self._state.move_to_end(d.sender)
+        while len(self._state) > self.max_senders:
+            self._state.popitem(last=False)
+            self.evicted += 1
         return None
+
+    def __len__(self) -> int:
+        return len(self._state)

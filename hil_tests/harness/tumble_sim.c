@@ -159,8 +159,11 @@ static int read_command(int *start, int *reset) {
 }
 
 static void do_reset(void) {
-  cycle_offset += avr->cycle;
+  /* Some simavr versions zero avr->cycle on reset and some (Debian's 1.6) do not: add only
+   * what the reset took away, so the emulated clock neither jumps nor freezes. */
+  const avr_cycle_count_t before = avr->cycle;
   avr_reset(avr);
+  cycle_offset += before - avr->cycle;
   rise[0] = rise[1] = 0;
   last_width[0] = last_width[1] = -1.0;
   printf("@reset %llu\n", sim_us());

@@ -37,7 +37,6 @@ class Publisher:
     _stop: threading.Event = field(default_factory=threading.Event)
 
     def run(self) -> None:
-        import socket
 
         seq = 0
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -169,7 +168,6 @@ def test_that_ctrl_c_stops_the_robot_and_propagates(lab: Lab) -> None:
 
 
 def test_that_duplicate_and_late_frames_do_not_make_extra_decisions(lab: Lab) -> None:
-    import socket
 
     policy = Scripted([(1, 1)])
 
@@ -186,21 +184,50 @@ def test_that_duplicate_and_late_frames_do_not_make_extra_decisions(lab: Lab) ->
     assert all(abs(o[0]) < 2 for o in policy.seen)  # never decided on the replayed (5, 5) frames
 
 
-def test_that_a_host_restarted_within_the_same_second_is_not_refused_as_a_replay() -> None:
-    from tumblebot.pi_agent import protocol as P
+def _wait_for_session(client: AgentClient, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while client.session is None:
+        assert time.monotonic() < deadline, "the agent never told its session"
+        client.request_telemetry()
+        time.sleep(0.05)
+        client.poll()
 
-    key = b"k" * 32
-    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    receiver.bind(("127.0.0.1", 0))
-    receiver.settimeout(2)
-    guard = P.ReplayGuard()
+
+def test_that_a_host_restarted_within_the_same_second_is_not_refused_as_a_replay(lab: Lab) -> None:
+    lab.client.close()
+    accepted = lab.agent.accepted
+    for _ in range(3):  # three host processes in quick succession, each sending a burst
+        client = AgentClient(lab.agent.address, KEY)
+        _wait_for_session(client)
+        for _ in range(50):
+            client.stop()
+        client.close()
+    deadline = time.monotonic() + 10
+    while lab.agent.accepted < accepted + 150:
+        assert time.monotonic() < deadline, (lab.agent.accepted - accepted, dict(lab.agent.drops))
+        time.sleep(0.01)
+    assert lab.agent.drops.get("replayed", 0) == 0 and lab.agent.drops.get("stale", 0) == 0
+
+
+def test_that_a_host_follows_an_agent_restart_to_its_new_session(lab: Lab) -> None:
+    _wait_for_session(lab.client)
+    first = lab.client.session
+    port = lab.agent.address[1]
+    lab.kill_agent()
+    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=port,
+                              allowed_host="127.0.0.1"), KEY)
+    stop = threading.Event()
+    thread = threading.Thread(target=agent.run, args=(stop.is_set,), daemon=True)
+    thread.start()
     try:
-        for _ in range(3):  # three host processes in quick succession, each sending a burst
-            client = AgentClient(receiver.getsockname(), key)
-            for _ in range(50):
-                client.stop()
-            for _ in range(50):
-                assert guard.check(P.decode_datagram(receiver.recv(P.MAX_DATAGRAM), key)) is None
-            client.close()
+        deadline = time.monotonic() + 10
+        telemetry: list[dict[str, object]] = []
+        while lab.client.session in (None, first) or not telemetry:
+            assert time.monotonic() < deadline, "the host never adopted the restarted agent's session"
+            lab.client.request_telemetry()
+            time.sleep(0.1)
+            telemetry = lab.client.poll()
+        assert lab.client.sessions == 2
     finally:
-        receiver.close()
+        stop.set()
+        thread.join(timeout=2)

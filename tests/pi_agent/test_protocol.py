@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import random
-import struct
 from pathlib import Path
 
 import pytest
@@ -87,38 +86,62 @@ def test_that_random_noise_never_decodes_into_a_set_speeds_frame() -> None:
 
 def test_sequence_numbers_wrap() -> None:
     assert P.newer(1, 0) and P.newer(0, 0xFFFF) and not P.newer(5, 5) and not P.newer(4, 5)
+    assert P.newer(0x7FFF, 0) and not P.newer(0x8000, 0)  # exactly half the circle counts as old
+
+
+SESSION = bytes(range(8))
+KEYS = P.LinkKeys.derive(KEY, SESSION)
 
 
 def command(counter: int, epoch: int = 100, sender: int = 7, speeds: tuple[int, int] = (1, -1)) -> P.Datagram:
-    return P.Datagram(P.UdpType.COMMAND, sender, epoch, counter, struct.pack("<bb", *speeds))
+    return P.Datagram(P.UdpType.COMMAND, sender, epoch, counter, P.command_payload(*speeds))
 
 
-def test_that_a_datagram_round_trips_with_its_key() -> None:
+def refused(wire: bytes, keys: P.LinkKeys = KEYS, accept: frozenset[P.UdpType] = P.TO_AGENT) -> P.DropReason:
+    with pytest.raises(P.DatagramError) as info:
+        P.decode_datagram(wire, keys, accept)
+    return info.value.code
+
+
+def test_that_a_datagram_round_trips_with_its_keys() -> None:
     d = command(1)
-    assert P.decode_datagram(P.encode_datagram(d, KEY), KEY) == d
+    assert P.decode_datagram(P.encode_datagram(d, KEYS), KEYS, P.TO_AGENT) == d
 
 
 def test_that_a_forged_or_tampered_datagram_is_unauthenticated() -> None:
-    wire = bytearray(P.encode_datagram(command(1), KEY))
-    with pytest.raises(P.ProtocolError) as info:
-        P.decode_datagram(bytes(wire), os.urandom(32))
-    assert info.value.code is P.DropReason.UNAUTHENTICATED
+    wire = bytearray(P.encode_datagram(command(1), KEYS))
+    assert refused(bytes(wire), P.LinkKeys.derive(os.urandom(32), SESSION)) is P.DropReason.UNAUTHENTICATED
     wire[21] ^= 0x01  # flip a payload bit
-    with pytest.raises(P.ProtocolError) as info:
-        P.decode_datagram(bytes(wire), KEY)
-    assert info.value.code is P.DropReason.UNAUTHENTICATED
+    assert refused(bytes(wire)) is P.DropReason.UNAUTHENTICATED
+
+
+def test_that_a_datagram_of_another_agent_session_is_unauthenticated() -> None:
+    """Replay after an agent restart: the new session's keys differ."""
+    wire = P.encode_datagram(command(1), KEYS)
+    assert refused(wire, P.LinkKeys.derive(KEY, bytes(8))) is P.DropReason.UNAUTHENTICATED
+
+
+def test_that_a_reflected_telemetry_datagram_is_refused_by_the_agent() -> None:
+    telemetry = P.encode_datagram(P.Datagram(P.UdpType.TELEMETRY, 1, 100, 5, b"{}"), KEYS)
+    assert refused(telemetry) is P.DropReason.MALFORMED  # not a type meant for the agent
+    # and a host -> agent datagram never verifies as agent -> host, even relabelled
+    wire = bytearray(P.encode_datagram(command(1), KEYS))
+    wire[3] = P.UdpType.TELEMETRY
+    assert refused(bytes(wire), accept=P.TO_HOST) is P.DropReason.UNAUTHENTICATED
+
+
+def test_that_the_direction_keys_differ() -> None:
+    assert len({KEYS.hello, KEYS.to_agent, KEYS.to_host}) == 3
 
 
 @pytest.mark.parametrize(("datagram", "reason"), [
-    (command(1, speeds=(2, 0)), P.DropReason.OUT_OF_RANGE),
-    (P.Datagram(0x55, 7, 100, 1), P.DropReason.OUT_OF_RANGE),
-    (P.Datagram(P.UdpType.COMMAND, 7, 100, 1, b"\x01"), P.DropReason.OUT_OF_RANGE),
+    (P.Datagram(P.UdpType.COMMAND, 7, 100, 1, b"\x02\x00"), P.DropReason.OUT_OF_RANGE),
+    (P.Datagram(0x55, 7, 100, 1), P.DropReason.MALFORMED),
+    (P.Datagram(P.UdpType.COMMAND, 7, 100, 1, b"\x01"), P.DropReason.MALFORMED),
+    (P.Datagram(P.UdpType.HELLO, 7, 100, 1, b"\x01"), P.DropReason.MALFORMED),
 ])
-def test_that_authenticated_but_out_of_range_datagrams_are_refused(datagram: P.Datagram,
-                                                                    reason: P.DropReason) -> None:
-    with pytest.raises(P.ProtocolError) as info:
-        P.decode_datagram(P.encode_datagram(datagram, KEY), KEY)
-    assert info.value.code is reason
+def test_that_authenticated_but_bad_datagrams_are_refused(datagram: P.Datagram, reason: P.DropReason) -> None:
+    assert refused(P.encode_datagram(datagram, KEYS)) is reason
 
 
 def test_that_the_replay_guard_wants_increasing_counters_per_sender_and_epoch() -> None:
@@ -132,9 +155,55 @@ def test_that_the_replay_guard_wants_increasing_counters_per_sender_and_epoch() 
     assert guard.check(command(7, epoch=100)) is P.DropReason.STALE
 
 
+def test_that_a_sender_id_flood_keeps_the_replay_state_bounded() -> None:
+    guard = P.ReplayGuard()
+    assert guard.check(command(10, sender=1)) is None
+    for sender in range(2, 40_000):
+        guard.check(command(1, sender=sender))
+    assert len(guard) == P.MAX_SENDERS and guard.evicted == 40_000 - 1 - P.MAX_SENDERS
+
+
 def test_that_malformed_datagrams_are_refused_without_a_crash() -> None:
     rng = random.Random(1)
     for _ in range(5000):
         blob = bytes(rng.getrandbits(8) for _ in range(rng.randrange(0, 80)))
         with pytest.raises(P.ProtocolError):
-            P.decode_datagram(blob, KEY)
+            P.decode_datagram(blob, KEYS, P.TO_AGENT)
+
+
+def test_that_an_error_report_with_an_unknown_code_still_unpacks() -> None:
+    report = P.ErrorReport.unpack(P.ErrorReport(0x42, 7).pack())
+    assert report.name == "unknown_0x42" and report.seq == 7
+
+
+@pytest.mark.parametrize("row", vectors("udp"), ids=lambda r: r[0])
+def test_udp_vectors(row: list[str]) -> None:
+    """``udp NAME KEY SESSION TYPE SENDER EPOCH COUNTER PAYLOAD WIRE``"""
+    _, key, session, dtype, sender, epoch, counter, payload, wire = row
+    keys = P.LinkKeys.derive(unhex(key), unhex(session))
+    d = P.Datagram(int(dtype), int(sender), int(epoch), int(counter), unhex(payload))
+    assert P.encode_datagram(d, keys) == unhex(wire)
+    accept = P.TO_HOST if int(dtype) >= 0x80 else P.TO_AGENT
+    assert P.decode_datagram(unhex(wire), keys, accept) == d
+
+
+@pytest.mark.parametrize("row", vectors("udpkey"), ids=lambda r: r[0])
+def test_udp_key_vectors(row: list[str]) -> None:
+    """``udpkey KEY SESSION HELLO TO_AGENT TO_HOST``"""
+    key, session, hello, to_agent, to_host = row
+    keys = P.LinkKeys.derive(unhex(key), unhex(session))
+    assert (keys.hello.hex(), keys.to_agent.hex(), keys.to_host.hex()) == (hello, to_agent, to_host)
+
+
+@pytest.mark.parametrize("row", vectors("msg"), ids=lambda r: r[0])
+def test_message_table_vectors(row: list[str]) -> None:
+    mtype, direction, size = row
+    spec = P.MESSAGES[P.MsgType(int(mtype))]
+    assert (spec.direction, spec.size) == (direction, int(size))
+
+
+@pytest.mark.parametrize("row", vectors("status"))
+def test_status_vectors(row: list[str]) -> None:
+    *fields, payload = row
+    status = P.Status(*map(int, fields))
+    assert status.pack() == unhex(payload) and P.Status.unpack(unhex(payload)) == status

@@ -197,3 +197,33 @@ TEST_CASE("mutated valid frames either decode exactly or are refused") {
     REQUIRE(c.speed(kLeft) == 0);
   }
 }
+
+TEST_CASE("firmware -> agent types sent to the firmware are counted and never answered") {
+  FakePort port;
+  Controller c(kEpoch, Trim{}, port);
+  feed(c, speeds(0, 0, 1), 0);
+  port.frames();
+  feed(c, wire(MsgType::Ready, {1, 0, 1, 0}, 2), 1);
+  feed(c, wire(MsgType::Error, {8, 0, 0}, 3), 2);
+  CHECK(port.written.empty());
+  CHECK(c.counters().otherDrops == 2);
+}
+
+TEST_CASE("every frame the firmware sends starts with a delimiter") {
+  FakePort port;
+  Controller c(kEpoch, Trim{}, port);
+  c.begin(0);
+  REQUIRE(!port.written.empty());
+  CHECK(port.written.front() == 0x00);
+  CHECK(port.written.back() == 0x00);
+}
+
+TEST_CASE("a sequence number exactly half the circle ahead counts as old") {
+  FakePort port;
+  Controller c(kEpoch, Trim{}, port);
+  feed(c, speeds(0, 0, 0), 0);
+  feed(c, speeds(1, 1, 0x8000), 1);
+  CHECK(c.pulseUs(kRight) == 1500);
+  feed(c, speeds(1, 1, 0x7FFF), 2);
+  CHECK(c.pulseUs(kRight) == 2000);
+}

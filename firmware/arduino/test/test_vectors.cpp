@@ -113,3 +113,30 @@ TEST_CASE("reject vectors are refused for the stated reason") {
     CHECK(toString(reader.error()) == std::string(toString(expected)));
   }
 }
+
+TEST_CASE("the message table matches the shared one") {
+  for (const auto& r : rows("msg")) {
+    const uint8_t type = static_cast<uint8_t>(std::stoi(r[0]));
+    INFO("type " << int(type));
+    CHECK(payloadSize(type) == std::stoi(r[2]));
+    CHECK(isForFirmware(type) == (r[1] == "to_firmware"));
+  }
+}
+
+TEST_CASE("STATUS payloads pack to the shared bytes") {
+  for (const auto& r : rows("status")) {
+    StatusPayload s;
+    s.uptimeMs = static_cast<uint32_t>(std::stoul(r[0]));
+    s.right = static_cast<int8_t>(std::stoi(r[1]));
+    s.left = static_cast<int8_t>(std::stoi(r[2]));
+    s.flags = static_cast<uint8_t>(std::stoi(r[3]));
+    s.framesOk = static_cast<uint16_t>(std::stoi(r[4]));
+    s.crcErrors = static_cast<uint16_t>(std::stoi(r[5]));
+    s.otherDrops = static_cast<uint16_t>(std::stoi(r[6]));
+    s.watchdogTrips = static_cast<uint16_t>(std::stoi(r[7]));
+    s.lastSeq = static_cast<uint16_t>(std::stoi(r[8]));
+    uint8_t out[StatusPayload::kSize];
+    s.pack(out);
+    CHECK(Bytes(out, out + StatusPayload::kSize) == unhex(r[9]));
+  }
+}

@@ -59,8 +59,8 @@ void Controller::refuse(Error error, uint16_t seq, bool reply) {
 
 void Controller::handle(const Frame& frame, uint32_t nowMs) {
   const auto type = static_cast<MsgType>(frame.type);
-  if (static_cast<uint8_t>(frame.type) >= 0x80) {  // firmware -> agent types are not for us
-    refuse(Error::UnknownType, frame.seq, true);
+  if (!isForFirmware(frame.type)) {  // firmware -> agent types (an echo): counted, never answered
+    refuse(Error::UnknownType, frame.seq, false);
     return;
   }
   if (frame.epoch != epoch_) {
@@ -103,16 +103,18 @@ void Controller::handle(const Frame& frame, uint32_t nowMs) {
 }
 
 void Controller::sendStatus(uint32_t nowMs) {
-  uint8_t p[17];
-  putU32(p, nowMs);
-  p[4] = static_cast<uint8_t>(speed(kRight));
-  p[5] = static_cast<uint8_t>(speed(kLeft));
-  p[6] = static_cast<uint8_t>((armed_ ? 1 : 0) | (watchdogHolding() ? 2 : 0));
-  putU16(p + 7, counters_.framesOk);
-  putU16(p + 9, counters_.crcErrors);
-  putU16(p + 11, counters_.otherDrops);
-  putU16(p + 13, counters_.watchdogTrips);
-  putU16(p + 15, lastSeq_);
+  StatusPayload status;
+  status.uptimeMs = nowMs;
+  status.right = speed(kRight);
+  status.left = speed(kLeft);
+  status.flags = static_cast<uint8_t>((armed_ ? 1 : 0) | (watchdogHolding() ? 2 : 0));
+  status.framesOk = counters_.framesOk;
+  status.crcErrors = counters_.crcErrors;
+  status.otherDrops = counters_.otherDrops;
+  status.watchdogTrips = counters_.watchdogTrips;
+  status.lastSeq = lastSeq_;
+  uint8_t p[StatusPayload::kSize];
+  status.pack(p);
   send(MsgType::Status, p, sizeof p);
 }
 
@@ -123,9 +125,11 @@ void Controller::send(MsgType type, const uint8_t* payload, uint8_t len) {
   frame.type = static_cast<uint8_t>(type);
   frame.len = len;
   for (uint8_t i = 0; i < len; ++i) frame.payload[i] = payload[i];
-  uint8_t wire[kMaxWire];
-  const size_t n = encodeFrame(frame, wire);
-  port_.write(wire, n);
+  uint8_t wire[kMaxWire + 1];
+  wire[0] = 0x00;  // a leading delimiter ends any partial frame the agent holds after noise
+  const size_t n = encodeFrame(frame, wire + 1);
+  if (n == 0) return;  // unreachable: every payload the firmware sends fits
+  port_.write(wire, n + 1);
 }
 
 }  // namespace tumble

@@ -76,10 +76,22 @@ int payloadSize(uint8_t type) {
     case MsgType::GetStatus: return 0;
     case MsgType::Ready: return 4;
     case MsgType::Pong: return 4;
-    case MsgType::Status: return 17;
+    case MsgType::Status: return StatusPayload::kSize;
     case MsgType::Error: return 3;
   }
   return -1;
+}
+
+void StatusPayload::pack(uint8_t* p) const {
+  putU32(p, uptimeMs);
+  p[4] = static_cast<uint8_t>(right);
+  p[5] = static_cast<uint8_t>(left);
+  p[6] = flags;
+  putU16(p + 7, framesOk);
+  putU16(p + 9, crcErrors);
+  putU16(p + 11, otherDrops);
+  putU16(p + 13, watchdogTrips);
+  putU16(p + 15, lastSeq);
 }
 
 size_t encodeFrame(const Frame& frame, uint8_t* out) {

@@ -53,8 +53,26 @@ struct Frame {
   uint8_t payload[kMaxPayload] = {};
 };
 
+// The message table (docs/protocol.md, "Messages"; Python: protocol.MESSAGES).
 // Exact payload size of a message type, or -1 for an unknown type.
 int payloadSize(uint8_t type);
+// Agent -> firmware types are below 0x80; firmware -> agent types from 0x80.
+inline bool isForFirmware(uint8_t type) { return type < 0x80; }
+
+// STATUS payload (17 bytes, little-endian), packed in one place.
+struct StatusPayload {
+  uint32_t uptimeMs = 0;
+  int8_t right = 0;
+  int8_t left = 0;
+  uint8_t flags = 0;  // bit 0 armed, bit 1 watchdog holding neutral
+  uint16_t framesOk = 0;
+  uint16_t crcErrors = 0;
+  uint16_t otherDrops = 0;
+  uint16_t watchdogTrips = 0;
+  uint16_t lastSeq = 0;
+  static constexpr uint8_t kSize = 17;
+  void pack(uint8_t* out) const;  // out: kSize bytes
+};
 
 // Frame -> wire bytes including the trailing 0x00 (out capacity >= kMaxWire). 0 if too long.
 size_t encodeFrame(const Frame& frame, uint8_t* out);

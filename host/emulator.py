@@ -1,4 +1,9 @@
-"""The firmware ELF running in simavr (harness/tumble_sim), seen from Python.
+"""The firmware ELF running in simavr (``hil_tests/harness/tumble_sim``), seen from Python.
+
+The one driver of the emulated Uno: the HIL tests, the digital twin and the link
+benchmarks all import it from here. It needs a source checkout (the firmware and the
+harness are built from it with Debian's avr-gcc and simavr) and pyserial (the ``agent``
+extra).
 
 :class:`EmulatedUno` starts the harness, opens its pseudo-terminal with pyserial exactly as
 the agent opens ``/dev/ttyACM0`` on a Pi (before the AVR starts, since pyserial's
@@ -14,8 +19,6 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-
-import serial
 
 ROOT = Path(__file__).resolve().parents[1]
 ELF = ROOT / "firmware" / "arduino" / "build" / "tumblebot.elf"
@@ -39,6 +42,8 @@ class PulseEvent:
 
 class EmulatedUno:
     def __init__(self, paced: bool = True, baud: int = 115_200) -> None:
+        import serial  # the agent extra
+
         build()
         args = [str(HARNESS), str(ELF)] + ([] if paced else ["--unpaced"])
         self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
