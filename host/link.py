@@ -29,17 +29,11 @@ class LinkError(TumblebotError):
 
 
 def load_host_key(path: Path) -> bytes:
-    """The shared 32-byte key; like the agent, refuse a file others may read."""
+    """The shared 32-byte key, under the agent's rule (:func:`protocol.read_key_file`)."""
     try:
-        st = path.stat()
-    except FileNotFoundError:
-        raise LinkError(f"key file {path} does not exist") from None
-    if st.st_mode & 0o077:
-        raise LinkError(f"key file {path} is readable by others (chmod 600 {path})")
-    key = path.read_bytes()
-    if len(key) != P.KEY_SIZE:
-        raise LinkError(f"key file {path} holds {len(key)} bytes; the key is {P.KEY_SIZE} bytes")
-    return key
+        return P.read_key_file(path)
+    except P.KeyFileError as exc:
+        raise LinkError(str(exc)) from None
 
 
 def parse_address(text: str, default_port: int = P.DEFAULT_PORT) -> tuple[str, int]:

@@ -36,7 +36,6 @@ import logging
 import os
 import select
 import socket
-import stat
 import struct
 import sys
 import time
@@ -107,15 +106,9 @@ class AgentConfig:
 def load_key(path: Path) -> bytes:
     """Read the 32-byte shared key; refuse a file others can read or write."""
     try:
-        st = path.stat()
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise AgentError(f"key file {path} does not exist") from None
-    if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise AgentError(f"key file {path} is accessible by group or others (chmod 600 {path})")
-    if len(data) != P.KEY_SIZE:
-        raise AgentError(f"key file {path} must hold exactly {P.KEY_SIZE} bytes, not {len(data)}")
-    return data
+        return P.read_key_file(path)
+    except P.KeyFileError as exc:
+        raise AgentError(str(exc)) from None
 
 
 SerialFactory = Callable[[str, int], Any]

@@ -20,6 +20,8 @@ import collections
 import enum
 import hashlib
 import hmac
+import os
+import stat
 import struct
 from dataclasses import dataclass
 
@@ -414,6 +416,29 @@ class Datagram:
     counter: int
     payload: bytes = b""
     version: int = UDP_VERSION
+
+
+class KeyFileError(ValueError):
+    """A key file that is missing, unreadable, the wrong size, or open to others."""
+
+
+def read_key_file(path: str | os.PathLike[str]) -> bytes:
+    """The 32-byte shared key from ``path``; refuses a file with any permission bit for
+    group or others (the agent's and the host's rule alike)."""
+    try:
+        st = os.stat(path)
+        with open(path, "rb") as fh:
+            data = fh.read(KEY_SIZE + 1)
+    except FileNotFoundError:
+        raise KeyFileError(f"key file {path} does not exist") from None
+    except OSError as exc:
+        raise KeyFileError(f"key file {path} cannot be read: {exc.strerror}") from None
+    if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise KeyFileError(f"key file {path} is accessible by group or others (chmod 600 {path})")
+    if len(data) != KEY_SIZE:
+        size = str(len(data)) if len(data) <= KEY_SIZE else "more"
+        raise KeyFileError(f"key file {path} must hold exactly {KEY_SIZE} bytes, not {size}")
+    return data
 
 
 def _hmac(key: bytes, data: bytes) -> bytes:

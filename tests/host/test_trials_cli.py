@@ -83,7 +83,7 @@ def test_that_bad_trial_input_gets_one_clear_error(tmp_path: Path) -> None:
     new_key(key)
     out = tmp_path / "s"
     cases = [
-        (run_args(out, "127.0.0.1:47800", loose), "readable by others"),
+        (run_args(out, "127.0.0.1:47800", loose), "accessible by group or others"),
         (run_args(out, "127.0.0.1:notaport", key), "not a number"),
         (run_args(out, "127.0.0.1:47800", key, "--radius", "-1"), "--radius"),
         (run_args(out, "127.0.0.1:47800", key, "--design", "0.1,0.1,0.1,0.1"), "outside its bound"),
