@@ -44,6 +44,7 @@ import socket
 import threading
 import time
 import warnings
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -71,6 +72,43 @@ DEFAULT_STORAGE = "sqlite:///tumblebot-optuna.db"
 class OptimizeError(SimError):
     """A bad optimisation request: bad tasks or weights, a storage that cannot be opened,
     or a study that was created for a different objective."""
+
+
+class StopRequested(Exception):
+    """Raised at a safe point after Ctrl-C (or SIGTERM) asked the run to stop."""
+
+
+class StopFlag:
+    """Ctrl-C and SIGTERM only set this flag; the optimiser looks at it at safe points
+    (between episodes, before asking for a trial) and stops there, marking an unfinished
+    trial interrupted so it is redone. Use :meth:`installed` around the work."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def __call__(self) -> bool:
+        return self._event.is_set()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def check(self) -> None:
+        if self._event.is_set():
+            raise StopRequested
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[StopFlag]:
+        """Route SIGINT and SIGTERM to this flag while the block runs (main thread only)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+        previous = {sig: signal.signal(sig, lambda _sig, _frame: self._event.set())
+                    for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield self
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
 
 # --------------------------------------------------------------------------- objective
@@ -248,9 +286,13 @@ class StudyConfig:
 
 
 # --------------------------------------------------------------------------- storage
-def open_storage(url: str) -> Any:
+def open_storage(url: str, writable: bool = False, must_exist: bool = False) -> Any:
     """An Optuna RDB storage for ``url`` (``sqlite:///file.db``, ``postgresql://…``), with
-    heartbeats so a trial whose process was killed is failed and not counted forever."""
+    heartbeats so a trial whose process was killed is failed and not counted forever.
+
+    For SQLite files, checked before anything is opened: ``must_exist`` refuses a file
+    that is not there (a report never creates an empty database from a typo), and
+    ``writable`` refuses a file or folder this process cannot write (a study is written)."""
     import optuna
     from optuna.storages import RDBStorage
 
@@ -260,8 +302,16 @@ def open_storage(url: str) -> Any:
                             "postgresql://user@host/db)")
     if url.startswith("sqlite:///"):
         path = Path(url[len("sqlite:///"):])
-        if str(path) and str(path) != ":memory:" and not path.parent.exists():
-            raise OptimizeError(f"--storage {url!r}: folder {path.parent} does not exist")
+        if str(path) and str(path) != ":memory:":
+            if not path.parent.exists():
+                raise OptimizeError(f"--storage {url!r}: folder {path.parent} does not exist")
+            if must_exist and not path.is_file():
+                raise OptimizeError(f"--storage {url!r}: there is no database file {path}")
+            if writable and path.exists() and not os.access(path, os.R_OK | os.W_OK):
+                raise OptimizeError(f"--storage {url!r}: the database file {path} is not writable by this user")
+            if writable and not os.access(path.parent, os.W_OK | os.X_OK):
+                raise OptimizeError(f"--storage {url!r}: folder {path.parent} is not writable (SQLite writes a "
+                                    "journal beside the database)")
     engine_kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
         engine_kwargs = {"connect_args": {"timeout": 60}}  # several processes share one file
@@ -304,6 +354,7 @@ def open_study(storage: Any, name: str, config: StudyConfig) -> optuna.Study:
     import optuna
 
     study = optuna.create_study(study_name=name, storage=storage, direction="maximize", load_if_exists=True)
+    _STORAGES[study] = storage
     existing = load_config(study)
     if existing is None:
         if study.trials:
@@ -472,12 +523,14 @@ class Progress:
 
 
 def _evaluate(objective: Objective, runner: EpisodeRunner | None, design: Design, start: int, stop: int,
-              seed: int) -> tuple[dict[str, list[float]], float, np.ndarray]:
+              seed: int, on_result: Callable[[], None] | None = None
+              ) -> tuple[dict[str, list[float]], float, np.ndarray]:
     e = energy_per_metre(design)
     if not objective.tasks:
         return {}, e, objective.per_episode({}, e)
-    assert runner is not None
-    R = runner.run(design, objective.tasks, start, stop, seed)
+    if runner is None:
+        raise OptimizeError("this objective needs episodes, but no episode runner was given")
+    R = runner.run(design, objective.tasks, start, stop, seed, on_result=on_result)
     return {t: r.tolist() for t, r in R.items()}, e, objective.per_episode(R, e)
 
 
@@ -517,7 +570,7 @@ def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]
 
 
 def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
-             seed: int) -> int:
+             seed: int, on_result: Callable[[], None] | None = None) -> int:
     """Extend the most promising not-yet-promoted screened trial (by :func:`screen_scores`)
     to the full batch. Returns episodes run."""
     done = promotions(study)
@@ -529,7 +582,7 @@ def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     study.set_user_attr(f"promoting:{t.number}", True)
     design = trial_design(t)
     try:
-        more, e, _ = _evaluate(objective, runner, design, recipe.screen_batch, recipe.batch, seed)
+        more, e, _ = _evaluate(objective, runner, design, recipe.screen_batch, recipe.batch, seed, on_result)
     except BaseException:
         with contextlib.suppress(Exception):
             study.set_user_attr(f"promoting:{t.number}", False)  # let it be promoted again later
@@ -542,13 +595,21 @@ def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
 
 
 def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None, seed: int,
-             on_progress: Callable[[Progress], None] | None = None, episode_budget: int | None = None) -> Progress:
+             on_progress: Callable[[Progress], None] | None = None, episode_budget: int | None = None,
+             should_stop: Callable[[], bool] | None = None) -> Progress:
     """Run trials until the study holds ``recipe.trials`` of them (counting other workers'),
     or until it has spent ``episode_budget`` episodes (the efficient recipe keeps enough of
     the budget back for its final promotions).
 
-    Ctrl-C (``KeyboardInterrupt``) marks the trial in progress as interrupted (it will be
-    redone) and propagates; the study stays consistent and the same call resumes it.
+    ``should_stop`` (e.g. a :class:`StopFlag` that Ctrl-C sets) is looked at before each
+    trial and after every episode; when it says stop, the trial in progress is marked
+    interrupted (it will be redone) and :class:`StopRequested` is raised. The study stays
+    consistent and the same call resumes it. A ``KeyboardInterrupt`` (Ctrl-C with no flag
+    installed) is handled the same way.
+
+    While a trial runs, its heartbeat is recorded from this loop (after every episode, at
+    most every few seconds), so a trial of a process that was killed is failed by
+    :func:`optuna.storages.fail_stale_trials` and redone.
     """
     import optuna
 
@@ -575,21 +636,27 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
             on_progress(p)
         return p
 
-    from optuna.storages._heartbeat import get_heartbeat_thread
+    stop = should_stop or (lambda: False)
+
+    def safe_point() -> None:
+        if stop():
+            raise StopRequested
 
     promotion = (recipe.batch - recipe.screen_batch) * n_tasks
     while True:
+        safe_point()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             optuna.storages.fail_stale_trials(study)  # trials of killed workers: failed, redone
         if counted_trials(study) >= recipe.trials or not affordable(recipe.screen_batch * n_tasks, reserve):
             break
-        with warnings.catch_warnings(), _sigint_deferred():  # Ctrl-C inside ask() would strand a RUNNING trial
-            warnings.filterwarnings("ignore", message="Heartbeat of storage")  # we run the heartbeat ourselves
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Heartbeat of storage")  # we record the heartbeat ourselves
             trial = study.ask(distributions)
-        try:
-            with get_heartbeat_thread(trial._trial_id, study._storage):
-                value, added = _run_trial(study, trial, objective, recipe, runner, seed)
+        try:  # nothing between ask() and here can be interrupted: signals only set the flag
+            beat = _Heartbeat(study, trial.number, then=safe_point)
+            beat()
+            value, added = _run_trial(study, trial, objective, recipe, runner, seed, beat)
         except BaseException:
             _mark_interrupted(study, trial)
             raise
@@ -597,27 +664,52 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         last_value, last_state = value, "complete" if value is not None else "infeasible"
         if recipe.promote_every and objective.tasks and trial.number >= recipe.startup \
                 and (trial.number + 1) % recipe.promote_every == 0 and affordable(promotion, reserve):
-            episodes += _promote(study, objective, recipe, runner, seed)
+            episodes += _promote(study, objective, recipe, runner, seed, safe_point)
         progress()
     if objective.tasks:
         for _ in range(recipe.final_promotions):
+            safe_point()
             if _top_is_promoted(study, objective, recipe.final_promotions) or not affordable(promotion):
                 break
-            episodes += _promote(study, objective, recipe, runner, seed)
+            episodes += _promote(study, objective, recipe, runner, seed, safe_point)
     return progress()
 
 
-@contextlib.contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold Ctrl-C back until the block is done (it is delivered right after)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+class _Heartbeat:
+    """Records a running trial's heartbeat through the storage's public
+    ``record_heartbeat``, at most every :data:`HEARTBEAT_EVERY` seconds (no thread: it is
+    called from the loop, after every episode, so nothing is left running at exit), then
+    calls ``then`` (the stop check)."""
+
+    def __init__(self, study: optuna.Study, number: int, then: Callable[[], None] = lambda: None) -> None:
+        self.then = then
+        self.storage = _storage_of(study)
+        self.enabled = callable(getattr(self.storage, "record_heartbeat", None))
+        self.trial_id = (self.storage.get_trial_id_from_study_id_trial_number(
+            self.storage.get_study_id_from_name(study.study_name), number) if self.enabled else -1)
+        self.last = -math.inf
+
+    def __call__(self) -> None:
+        now = time.monotonic()
+        if self.enabled and now - self.last >= HEARTBEAT_EVERY:
+            self.last = now
+            self.storage.record_heartbeat(self.trial_id)
+        self.then()
+
+
+#: Seconds between heartbeats of a running trial (the storage's grace period is 60 s).
+HEARTBEAT_EVERY = 5.0
+
+
+#: The storage each study was opened from (Optuna has no public accessor for it).
+_STORAGES: weakref.WeakKeyDictionary[optuna.Study, Any] = weakref.WeakKeyDictionary()
+
+
+def _storage_of(study: optuna.Study) -> Any:
+    storage = _STORAGES.get(study)
+    if storage is None:
+        raise OptimizeError("open studies with tumblebot.sim.optimize.open_study (it keeps the storage)")
+    return storage
 
 
 def _mark_interrupted(study: optuna.Study, trial: optuna.Trial) -> None:
@@ -625,14 +717,17 @@ def _mark_interrupted(study: optuna.Study, trial: optuna.Trial) -> None:
     redone, unless it was already told."""
     from optuna.trial import TrialState
 
-    with _sigint_deferred(), contextlib.suppress(Exception):
-        if study._storage.get_trial(trial._trial_id).state == TrialState.RUNNING:
+    with contextlib.suppress(Exception):
+        frozen = [t for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+                  if t.number == trial.number]
+        if frozen:
             trial.set_user_attr("interrupted", True)
             study.tell(trial, state=TrialState.FAIL)
 
 
 def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, recipe: Recipe,
-               runner: EpisodeRunner | None, seed: int) -> tuple[float | None, int]:
+               runner: EpisodeRunner | None, seed: int, on_result: Callable[[], None] | None = None
+               ) -> tuple[float | None, int]:
     """Evaluate one asked trial and tell its result. Returns (value or None, episodes run)."""
     from optuna.trial import TrialState
 
@@ -646,7 +741,7 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
         return None, 0
     # Ctrl-C or a crash from here on: optimize() fails the trial and flags it interrupted.
     started = time.perf_counter()
-    R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed)
+    R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed, on_result)
     value = float(np.mean(per_episode))
     trial.set_user_attr("e", e)
     trial.set_user_attr("batch", recipe.screen_batch if objective.tasks else 0)

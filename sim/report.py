@@ -184,7 +184,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         raise OptimizeError(f"--slice-points {slice_points} must be at least 2")
     if workers < 1:
         raise OptimizeError(f"--workers {workers} must be at least 1")
-    storage = open_storage(storage_url)
+    storage = open_storage(storage_url, must_exist=True)
     results = [_load(storage, name) for name in studies]
     usable = [r for r in results if "best_design" in r.extra]
     if not usable:

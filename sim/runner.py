@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import signal
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -32,8 +32,9 @@ Job = tuple[str, tuple[float, float, float, float], int, int]  # task, design, e
 _state: dict[str, Any] = {}
 
 
-def _init_worker(policies: dict[str, str]) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
+def _init_worker(policies: dict[str, str], in_process: bool = False) -> None:
+    if not in_process:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
     _state.clear()
     _state["policy_paths"] = policies
     _state["envs"] = {}
@@ -93,12 +94,14 @@ class EpisodeRunner:
             self._pool = mp.get_context("forkserver").Pool(workers, initializer=_init_worker,
                                                             initargs=(self.policies,))
         else:
-            _init_worker(self.policies)
-            signal.signal(signal.SIGINT, signal.default_int_handler)  # _init_worker ignored it here
+            _init_worker(self.policies, in_process=True)  # this process's Ctrl-C handling is left alone
 
-    def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int
-            ) -> dict[str, np.ndarray]:
-        """Final-state R of episodes ``start..stop-1`` of each task, in episode order."""
+    def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
+            on_result: Callable[[], None] | None = None) -> dict[str, np.ndarray]:
+        """Final-state R of episodes ``start..stop-1`` of each task, in episode order.
+
+        ``on_result`` is called after every episode, in this process: a safe point, where
+        it may raise to stop (the pool is then left to :meth:`close`)."""
         names = [get_task(t).name for t in tasks]
         missing = [t for t in names if t not in self.policies]
         if missing:
@@ -114,7 +117,9 @@ class EpisodeRunner:
             results = self._pool.imap_unordered(_run_job, jobs, chunksize=max(1, len(jobs) // (4 * self.workers)))
         for task, index, R in results:
             out[task][index - start] = R
-        self.episodes_run += len(jobs)
+            self.episodes_run += 1
+            if on_result is not None:
+                on_result()
         return out
 
     def close(self) -> None:

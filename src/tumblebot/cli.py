@@ -53,6 +53,8 @@ def _urdf(args: argparse.Namespace) -> int:
     from tumblebot.sim.robot import RobotModel, to_urdf
 
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
+    if args.output is not None and str(args.output) != "-":
+        _check_writable(args.output, "-o")
     text = to_urdf(RobotModel.from_design(w))
     if args.output is None or str(args.output) == "-":
         sys.stdout.write(text)
@@ -103,6 +105,10 @@ def _sim(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     from tumblebot.sim.demo import run_demo
 
+    if args.video_dir is not None:
+        if args.video_dir.exists() and not args.video_dir.is_dir():
+            raise TumblebotError(f"--video-dir {args.video_dir} exists and is not a folder")
+        _check_writable(args.video_dir / "nav-flat.gif", "--video-dir")
     run_demo(sys.stdout, video_dir=args.video_dir)
     return 0
 
@@ -243,6 +249,8 @@ def _optimize(args: argparse.Namespace) -> int:
         OptimizeError,
         Progress,
         Recipe,
+        StopFlag,
+        StopRequested,
         StudyConfig,
         bundled_policies,
         format_best,
@@ -257,61 +265,76 @@ def _optimize(args: argparse.Namespace) -> int:
     from tumblebot.sim.policy import sha256_of
 
     objective = Objective(parse_tasks(args.tasks), parse_xi(args.xi), args.variant)
-    recipe = Recipe.make(args.recipe, args.trials, args.batch, args.startup)
+    batch = args.batch
+    if objective.tasks == [] and batch is None and args.recipe != "thesis":
+        batch = 1  # ξ = inf: e(w) alone, no episodes, so no batch to choose
+    recipe = Recipe.make(args.recipe, args.trials, batch, args.startup)
     if args.workers < 1:
         raise OptimizeError(f"--workers {args.workers} must be at least 1")
     if args.episode_budget is not None and args.episode_budget < 1:
         raise OptimizeError(f"--episode-budget {args.episode_budget} must be at least 1")
+    if args.json is not None:
+        _check_writable(args.json, "--json")
     policies = bundled_policies(objective.tasks)
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()})
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
-    study = open_study(open_storage(storage_url), name, config)
-    stored = load_config(study)
-    if args.startup is None and stored is not None and stored.startup != recipe.startup:
-        recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
-    print(f"study {name!r} in {storage_url}: {objective.describe()}, recipe {recipe.name} "
-          f"({recipe.trials} trials, {recipe.startup} random then GP-logEI, batch {recipe.batch}"
-          + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
-          file=sys.stderr)
-
-    from tqdm import tqdm
-
-    bar = tqdm(total=recipe.trials, unit="trial", desc="optimize", disable=args.quiet, mininterval=0.5)
-
-    def show(p: Progress) -> None:
-        bar.n = min(p.done, recipe.trials)
-        if p.best is not None:
-            x, y, z, l = p.best.design  # noqa: E741
-            bar.set_postfix_str(f"best {p.best.value:.4g} at x={x:.3f} y={y:.3f} z={z:.3f} l={l:.3f}")
-        bar.refresh()
-
-    from tumblebot.sim.runner import EpisodeRunner
-
-    runner = EpisodeRunner(policies, workers=args.workers) if objective.tasks else None
-    try:
-        result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
-                          episode_budget=args.episode_budget)
-    except KeyboardInterrupt:
-        bar.close()
-        print(f"\nstopped; finished trials are kept in {storage_url}. Run the same command to resume.",
+    stop = StopFlag()
+    with stop.installed():  # from here on Ctrl-C only asks; the work stops at its next safe point
+        study = open_study(open_storage(storage_url, writable=True), name, config)
+        stored = load_config(study)
+        if args.startup is None and stored is not None and stored.startup != recipe.startup:
+            recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
+        print(f"study {name!r} in {storage_url}: {objective.describe()}, recipe {recipe.name} "
+              f"({recipe.trials} trials, {recipe.startup} random then GP-logEI, batch {recipe.batch}"
+              + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
               file=sys.stderr)
-        return 130
-    finally:
-        if runner is not None:
-            runner.close()
-    bar.close()
+
+        from tqdm import tqdm
+
+        bar = tqdm(total=recipe.trials, unit="trial", desc="optimize", disable=args.quiet, mininterval=0.5)
+
+        def show(p: Progress) -> None:
+            bar.n = min(p.done, recipe.trials)
+            if p.best is not None:
+                x, y, z, l = p.best.design  # noqa: E741
+                bar.set_postfix_str(f"best {p.best.value:.4g} at x={x:.3f} y={y:.3f} z={z:.3f} l={l:.3f}")
+            bar.refresh()
+
+        from tumblebot.sim.runner import EpisodeRunner
+
+        runner = None
+        try:
+            runner = EpisodeRunner(policies, workers=args.workers) if objective.tasks else None
+            result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
+                              episode_budget=args.episode_budget, should_stop=stop)
+        except (StopRequested, KeyboardInterrupt):
+            bar.close()
+            print(f"\nstopped; finished trials are kept in {storage_url}. Run the same command to resume.",
+                  file=sys.stderr)
+            return 130
+        finally:
+            if runner is not None:
+                runner.close()
+        bar.close()
     print(f"{result.done} trials in study {name!r} ({result.episodes} episodes this run)")
     print(format_best(result.best, objective))
     if args.json is not None:
         from tumblebot.sim.optimize import study_summary, to_json
 
-        args.json.write_text(to_json(study_summary(study)) + "\n")
+        try:
+            args.json.write_text(to_json(study_summary(study)) + "\n")
+        except OSError as exc:
+            raise TumblebotError(f"--json {args.json}: cannot write: {exc.strerror}") from None
     return 0
 
 
 def _report(args: argparse.Namespace) -> int:
     from tumblebot.sim.report import write_report
+
+    if args.output.exists() and not args.output.is_dir():
+        raise TumblebotError(f"-o {args.output} exists and is not a folder")
+    _check_writable(args.output / "report.md", "-o")
 
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet)
@@ -504,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "(default $TUMBLEBOT_STORAGE, else sqlite:///tumblebot-optuna.db)")
     p.add_argument("--study", help="study name (default from the tasks and xi, e.g. nav-flat=1-xi3)")
     p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the episodes and start-up designs (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the episodes and start-up designs (default 0)")
     p.add_argument("--variant", choices=("thesis", "monotone"), default="thesis",
                    help="wrapper for R < 0: the thesis's R/(e+1)^xi or the monotone R*(e+1)^xi (default thesis)")
     p.add_argument("--json", type=Path, help="also write the study summary as JSON to this file")
@@ -524,7 +547,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                 "studies' full batch)")
     p.add_argument("--slice-points", type=int, default=7, help="points per one-parameter slice (default 7)")
     p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the re-evaluation episodes, which should differ "
+    p.add_argument("--seed", type=_seed, default=1, help="seed of the re-evaluation episodes, which should differ "
                                                        "from the studies' (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_report)

@@ -284,6 +284,43 @@ def test_that_ctrl_c_stops_cleanly_and_the_same_command_resumes(tmp_path: Path) 
     assert counted_trials(load(db, "c")) == 8
 
 
+def _interrupt_at(cmd: list[str], delay: float) -> subprocess.CompletedProcess[str]:
+    """Start ``cmd`` with Ctrl-C at its default (a background job of a non-interactive shell
+    would inherit it ignored), send SIGINT ``delay`` s after start, wait for it to end."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=300)  # generous: a hang, not a slow machine, fails this
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"the process did not exit after Ctrl-C at {delay} s: {err[-2000:]}") from None
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_that_ctrl_c_at_any_moment_never_strands_a_trial_nor_hangs(tmp_path: Path, workers: str) -> None:
+    db = tmp_path / "m.db"
+    cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat=1", "--xi", "3", "--trials", "400",
+           "--batch", "4", "--startup", "1", "--workers", workers, "--storage", f"sqlite:///{db}", "--study", "m",
+           "--quiet"]
+    for delay in (0.2, 1.0, 2.0, 3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 7.5):  # imports, study creation, ask(), episodes, tell
+        run = _interrupt_at(cmd, delay)
+        assert run.returncode in (130, 2), (delay, run.returncode, run.stderr[-2000:])
+        assert "Traceback" not in run.stderr, (delay, run.stderr[-3000:])
+        if db.exists():
+            try:
+                study = load(db, "m")
+            except KeyError:
+                continue  # stopped before the study was created
+            running = [t.number for t in study.trials if t.state == optuna.trial.TrialState.RUNNING]
+            assert running == [], f"Ctrl-C at {delay} s left trials {running} RUNNING"
+    assert counted_trials(load(db, "m")) >= 1
+
+
 # ------------------------------------------------------------------ scale-out
 def _two_workers(storage: str, study: str, trials: int) -> list[subprocess.CompletedProcess[str]]:
     cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat", "--xi", "3", "--trials",
@@ -336,3 +373,58 @@ def test_that_the_report_checks_the_universal_optimum_across_tasks(tmp_path: Pat
         assert all(c["p_vs_own_optimum"] is not None for o, c in row.items() if o != task)
     assert "statistically the same robot" in (out / "report.md").read_text() or "not the same robot" in \
         (out / "report.md").read_text()
+
+
+# ------------------------------------------------------------------ bad input, before any work
+@pytest.mark.parametrize("command", [
+    ["sim", "--task", "nav-flat"],
+    ["evaluate", "--task", "nav-flat", "--design", "0.292,0.129,0.098,0.136", "--episodes", "1"],
+    ["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "2", "--batch", "2", "--study", "neg"],
+    ["report", "--study", "neg", "-o", "rep"],
+])
+def test_that_a_negative_seed_is_one_error_line_and_creates_nothing(tmp_path: Path, command: list[str]) -> None:
+    db = tmp_path / "neg.db"
+    args = [*command, "--seed", "-1"]
+    if command[0] in ("optimize", "report"):
+        args += ["--storage", f"sqlite:///{db}"]
+    run = subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True, timeout=120,
+                         check=False, stdin=subprocess.DEVNULL, cwd=tmp_path)
+    assert run.returncode == 2 and "Traceback" not in run.stderr and "non-negative" in run.stderr, run.stderr
+    assert not db.exists()
+
+
+def test_that_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    bad = blocker / "out"
+    w = ["--design", "0.292,0.129,0.098,0.136"]
+    for args in (["urdf", *w, "-o", str(bad / "r.urdf")],
+                 ["sim", "--task", "nav-flat", *w, "--video", str(bad / "v.gif")],
+                 ["evaluate", "--task", "nav-flat", *w, "--episodes", "1", "--csv", str(bad / "e.csv")],
+                 ["demo", "--video-dir", str(bad)],
+                 ["optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage",
+                  f"sqlite:///{tmp_path / 'o.db'}", "--study", "o", "--json", str(bad / "o.json"), "--quiet"]):
+        start = time.monotonic()
+        run = tb(*args, timeout=120)
+        assert run.returncode == 2 and "Traceback" not in run.stderr, (args, run.stderr)
+        assert len([ln for ln in run.stderr.splitlines() if ln.startswith("tumblebot: error")]) == 1, run.stderr
+        assert time.monotonic() - start < 60  # refused up front, not after the episodes
+    assert not (tmp_path / "o.db").exists(), "optimize opened its study before checking --json"
+
+
+def test_that_report_on_a_mistyped_sqlite_path_creates_no_database(tmp_path: Path) -> None:
+    run = tb("report", "--storage", f"sqlite:///{tmp_path / 'typo.db'}", "--study", "s", "-o", str(tmp_path / "r"))
+    assert run.returncode == 2 and "no database file" in run.stderr, run.stderr
+    assert not (tmp_path / "typo.db").exists()
+
+
+def test_that_xi_infinity_needs_no_batch(tmp_path: Path) -> None:
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage",
+             f"sqlite:///{tmp_path / 'i.db'}", "--study", "i", "--quiet")
+    assert run.returncode == 0, run.stderr
+
+
+def test_that_evaluate_checks_xi_before_the_episodes(tmp_path: Path) -> None:
+    run = tb("evaluate", "--task", "nav-flat", "--design", "0.292,0.129,0.098,0.136", "--xi", "-1",
+             "--episodes", "100000")
+    assert run.returncode == 2 and "--xi" in run.stderr, run.stderr
