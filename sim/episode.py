@@ -11,9 +11,8 @@ import numpy as np
 from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.gaits import get_gait
-from tumblebot.sim.goto import GotoController, check_navigation_task
 from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.rollout import make_actor, run_episode
 
 
 @dataclass
@@ -50,35 +49,27 @@ def run_gait_episode(
     """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
     the closed-loop navigation controller)."""
     from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.evaluate import Controller
 
-    goto: GotoController | None = None
-    if gait == "goto":
-        check_navigation_task(task)
-        goto = GotoController()
-    else:
-        gait_fn = get_gait(gait)
+    controller = Controller.of_gait(gait)
+    controller.check(task)
+    actor = make_actor(controller.kind, controller.name, task)
     env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),
                      motor_model=motor_model,  # type: ignore[arg-type]
                      stall_torque=stall_torque,
                      render_mode="rgb_array_list" if record else None)
     try:
-        gait_rng = np.random.default_rng(seed)
         steps: list[StepRecord] = []
-        frames: list[np.ndarray] = []
+
+        def record_step(step: int, action: np.ndarray, obs: np.ndarray, info: dict[str, object]) -> None:
+            steps.append(StepRecord(step + 1, (int(action[0]), int(action[1])),
+                                    (float(obs[0]), float(obs[1]), float(obs[2])), float(info["R"])))  # type: ignore[arg-type]
+
         start = time.perf_counter()
-        info: dict[str, object] = {}
-        obs, _ = env.reset(seed=seed)
-        for t in range(env.episode_steps):
-            action = goto.act(obs, t) if goto is not None else gait_fn(t, gait_rng)
-            obs, _, terminated, truncated, info = env.step(np.array(action))
-            steps.append(StepRecord(t + 1, action, (float(obs[0]), float(obs[1]), float(obs[2])), float(info["R"])))  # type: ignore[arg-type]
-            if terminated or truncated:
-                break
+        outcome = run_episode(env, actor, seed, on_step=record_step)
         wall = time.perf_counter() - start
-        if record:
-            frames = env.render()
-        return EpisodeResult(task, gait, design, seed, float(info["final_R"]),  # type: ignore[arg-type]
-                             steps[-1].position, steps, wall, frames)
+        frames: list[np.ndarray] = env.render() if record else []
+        return EpisodeResult(task, gait, design, seed, outcome.final_R, steps[-1].position, steps, wall, frames)
     finally:
         env.close()
 

@@ -9,9 +9,7 @@ design is fixed, so the environment's design stream goes unused).
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,9 +20,8 @@ from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
-from tumblebot.sim.goto import GotoController, check_navigation_task
+from tumblebot.sim.goto import check_navigation_task
 from tumblebot.sim.power import energy_per_metre
-from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.stats import mean_ci95
 from tumblebot.sim.tasks import get_task
 
@@ -144,53 +141,6 @@ class EvalResult:
         return out
 
 
-# --- worker side -----------------------------------------------------------------------
-_worker: dict[str, Any] = {}
-
-
-def _init_worker(task: str, controller: Controller, design: Design, servo: Servo) -> None:
-    from tumblebot.sim.env import TumblerEnv
-
-    _worker["env"] = TumblerEnv(task=task, design=design, randomization=Randomization(design=False),
-                                **servo.env_kwargs())
-    _worker["controller"] = controller
-    if controller.kind == "onnx":
-        from tumblebot.sim.policy import OnnxPolicy
-
-        _worker["policy"] = OnnxPolicy(Path(controller.name), task=get_task(task).name)
-    elif controller.kind == "goto":
-        _worker["goto"] = GotoController()
-    else:
-        _worker["gait"] = get_gait(controller.name)
-
-
-def _run_episode(job: tuple[int, int]) -> tuple[int, float, tuple[float, float, float]]:
-    index, seed = job
-    env = _worker["env"]
-    obs, _ = env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    goto: GotoController | None = _worker.get("goto")
-    if goto is not None:
-        goto.reset()
-    info: dict[str, Any] = {}
-    for step in range(env.episode_steps):
-        if "policy" in _worker:
-            action = _worker["policy"].act(obs)
-        elif goto is not None:
-            action = np.array(goto.act(obs, step))
-        else:
-            action = np.array(_worker["gait"](step, rng))
-        obs, _, _, truncated, info = env.step(action)
-        if truncated:
-            break
-    pos = info["final_position"]
-    return index, float(info["final_R"]), (float(pos[0]), float(pos[1]), float(pos[2]))
-
-
-def _jobs(seed: int, episodes: int) -> list[tuple[int, int]]:
-    return [(i, episode_seed(seed, i)) for i in range(episodes)]
-
-
 def evaluate(task: str, design: Design, controller: Controller, episodes: int, seed: int = 0,
              workers: int = 1, progress: bool = False, servo: Servo | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
@@ -203,37 +153,18 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
     if seed < 0:
         raise SimError(f"seed={seed} must be a non-negative integer")
     controller.check(spec.name)
-    jobs = _jobs(seed, episodes)
-    results: list[tuple[int, float, tuple[float, float, float]]] = []
+    from tumblebot.sim.runner import EpisodeRunner
+
     start = time.perf_counter()
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
-    it: Iterator[tuple[int, float, tuple[float, float, float]]]
-    if workers == 1:
-        _init_worker(spec.name, controller, design, servo)
-        try:
-            it = map(_run_episode, jobs)
-            for r in it:
-                results.append(r)
-                if bar is not None:
-                    bar.update()
-        finally:
-            _worker.pop("env").close()
-            _worker.clear()
-    else:
-        ctx = mp.get_context("forkserver")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(spec.name, controller, design, servo)) as pool:
-            for r in pool.imap_unordered(_run_episode, jobs, chunksize=2):
-                results.append(r)
-                if bar is not None:
-                    bar.update()
+    with EpisodeRunner({spec.name: controller}, workers=workers, servo=servo) as runner:
+        R, pos = runner.run_outcomes(design, [spec.name], 0, episodes, seed,
+                                     on_result=None if bar is None else bar.update)[spec.name]
     if bar is not None:
         bar.close()
-    results.sort(key=lambda r: r[0])
-    R = np.array([r[1] for r in results])
-    pos = np.array([r[2] for r in results])
     return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
                       time.perf_counter() - start, servo)

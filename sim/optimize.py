@@ -52,8 +52,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.errors import SimError, UnknownTaskError
+from tumblebot.sim.evaluate import Controller, Servo
 from tumblebot.sim.objective import VARIANTS, Variant, wrap_reward
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.tasks import get_task
@@ -267,12 +269,27 @@ class StudyConfig:
     startup: int
     seed: int
     policies: dict[str, str] = field(default_factory=dict)  # task → SHA-256 of the ONNX file
+    #: what drove the episodes: "policy" (each task's bundled ONNX policy), or a gait name
+    #: (``goto``, the closed-loop navigation controller, or a scripted gait). Studies made
+    #: before this field existed load as "policy".
+    controller: str = "policy"
+    motor_model: str = "dc"  #: the servo of every episode (SPEC: part of the objective)
+    stall_torque: float = STALL_TORQUE
 
     @classmethod
-    def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str]) -> StudyConfig:
+    def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
+           controller: str = "policy", servo: Servo | None = None) -> StudyConfig:
         xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
+        servo = servo or Servo()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
-                   recipe.startup, seed, policies)
+                   recipe.startup, seed, policies, controller, servo.model, servo.stall_torque)
+
+    def servo(self) -> Servo:
+        return Servo(self.motor_model, float(self.stall_torque))
+
+    def controllers(self, tasks: list[str]) -> dict[str, Controller]:
+        """Task → what drives it in this study's episodes."""
+        return study_controllers(self.controller, tasks)
 
     def objective(self) -> Objective:
         xi = math.inf if self.xi == "inf" else float(self.xi)
@@ -483,6 +500,17 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
     """The study's optimum: the best design on the full batch (or None before any)."""
     cands = full_batch_results(study)
     return max(cands, key=lambda c: c.value) if cands else None
+
+
+def study_controllers(controller: str, tasks: list[str]) -> dict[str, Controller]:
+    """``controller`` ``"policy"`` (each task's bundled ONNX policy) or a gait name
+    (``goto`` included), as a task → :class:`Controller` map, each checked for its task."""
+    if controller == "policy":
+        return {t: Controller("onnx", str(p)) for t, p in bundled_policies(tasks).items()}
+    out = {t: Controller.of_gait(controller) for t in tasks}
+    for t, c in out.items():
+        c.check(t)
+    return out
 
 
 def bundled_policies(tasks: list[str]) -> dict[str, Path]:

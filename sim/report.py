@@ -18,17 +18,18 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
+from tumblebot.sim.evaluate import Servo
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
     StudyConfig,
     best_candidate,
-    bundled_policies,
     episode_count,
     format_xi,
     load_config,
     load_study,
     open_storage,
+    study_controllers,
 )
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.stats import mean_ci95
@@ -48,6 +49,7 @@ THESIS_TABLE_32: dict[str, tuple[float, float | None]] = {
 #: Thesis Table 3.1 p-values against the ξ = 0 robot.
 THESIS_TABLE_31_P: dict[str, float | None] = {"0": None, "1": 0.33, "3": 0.08, "inf": 0.53}
 PERTURBATION = 0.1  # m, as in the thesis
+CONTROLLER_LABEL = {"policy": "each task's bundled policy", "goto": "goto (the hand-written navigation controller)"}
 
 
 @dataclass
@@ -113,10 +115,12 @@ def _fmt_p(p: float | None) -> str:
 class _Evaluator:
     """Evaluates designs on the report's episodes, with a cache and a progress bar."""
 
-    def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool) -> None:
+    def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
+                 controller: str = "policy", servo: Servo | None = None) -> None:
         from tumblebot.sim.runner import EpisodeRunner
 
-        self.runner = EpisodeRunner(bundled_policies(tasks), workers=workers) if tasks else None
+        self.runner = (EpisodeRunner(study_controllers(controller, tasks), workers=workers, servo=servo)
+                       if tasks else None)
         self.episodes, self.seed = episodes, seed
         self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
         self.bar: Any = None
@@ -171,9 +175,33 @@ def _load(storage: Any, name: str) -> StudyResult:
     return result
 
 
+def _common_controller(results: list[StudyResult], controller: str | None, servo: Servo | None
+                       ) -> tuple[str, Servo]:
+    """The controller and servo of the re-evaluation: as given, else the studies' own."""
+    if controller is None:
+        used = sorted({r.config.controller for r in results})
+        if len(used) > 1:
+            raise OptimizeError(f"the studies were run with different controllers ({', '.join(used)}); "
+                                "choose one for the report with --gait (goto) or run separate reports")
+        controller = used[0]
+    if servo is None:
+        servos = {r.config.servo() for r in results}
+        if len(servos) > 1:
+            raise OptimizeError("the studies were run with different servos ("
+                                + "; ".join(sorted(s.describe() for s in servos))
+                                + "); choose one with --motor-model/--stall-torque")
+        servo = servos.pop()
+    return controller, servo
+
+
 def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
-                 workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True) -> Path:
-    """Evaluate and plot the studies; returns the path of ``report.md``."""
+                 workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
+                 controller: str | None = None, servo: Servo | None = None) -> Path:
+    """Evaluate and plot the studies; returns the path of ``report.md``.
+
+    Every design is re-evaluated with one controller and one servo, so the tables compare
+    like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``servo`` default
+    to what the studies used, which must then agree."""
     if not studies:
         raise OptimizeError("give at least one --study")
     if len(set(studies)) != len(studies):
@@ -198,7 +226,8 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     universal_tasks = sorted({r.tasks[0] for r in single})
     total = len(usable) + 9 + len(PARAMETERS) * slice_points + len(universal_tasks) ** 2
     out_dir.mkdir(parents=True, exist_ok=True)
-    ev = _Evaluator(all_tasks, episodes, workers, seed, total, progress)
+    controller, servo = _common_controller(results, controller, servo)
+    ev = _Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo)
     try:
         for r in usable:
             r.best = ev(r.extra["best_design"], r.tasks)
@@ -212,6 +241,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     data = {"storage": storage_url, "studies": [r.name for r in results], "episodes": episodes, "seed": seed,
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
+            "controller": controller, "servo": servo.as_dict(),
             "table31": table31, "table32": table32, "universal": universal, "slices": slices}
     plots = _plots(results, reference, slices, out_dir)
     text = _markdown(results, reference, ref_task, data, plots)
@@ -427,7 +457,9 @@ def _markdown(results: list[StudyResult], reference: StudyResult, task: str, dat
         f"Storage `{data['storage']}`; studies {', '.join(f'`{r.name}`' for r in results)}.",
         f"Every R below is a fresh evaluation: {E} episodes per design and task, seed {data['seed']}, the same "
         "episodes for every design (common random numbers). p-values are two-sided paired t-tests on "
-        "per-episode final-state R; p < 0.05 in bold.", "",
+        "per-episode final-state R; p < 0.05 in bold.",
+        f"Controller: {CONTROLLER_LABEL.get(data['controller'], data['controller'])}; "
+        f"servo: {data['servo']['motor_model']} model, stall torque {data['servo']['stall_torque']:.3g} N·m.", "",
         "## Studies", "",
         "| study | objective | recipe | batch | feasible trials | episodes spent | optimum at trial |",
         "|---|---|---|---|---|---|---|",

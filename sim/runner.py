@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import signal
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -24,77 +24,93 @@ import numpy as np
 
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.evaluate import episode_seed
+from tumblebot.sim.evaluate import Controller, Servo, episode_seed
+from tumblebot.sim.rollout import Actor, make_actor, run_episode
 from tumblebot.sim.tasks import get_task
 
 Job = tuple[str, tuple[float, float, float, float], int, int]  # task, design, episode index, reset seed
+Result = tuple[str, int, float, tuple[float, float, float]]  # task, episode index, final R, final position
 
-_state: dict[str, Any] = {}
+class _Worker:
+    """One process's environments and controllers, one per task, reused across designs."""
 
+    def __init__(self, controllers: dict[str, Controller], servo: Servo) -> None:
+        self.controllers, self.servo = controllers, servo
+        self.envs: dict[str, Any] = {}
+        self.actors: dict[str, Actor] = {}
 
-def _init_worker(policies: dict[str, str], in_process: bool = False) -> None:
-    if not in_process:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
-    _state.clear()
-    _state["policy_paths"] = policies
-    _state["envs"] = {}
-    _state["policies"] = {}
+    def run(self, job: Job) -> Result:
+        task, w, index, seed = job
+        if task not in self.envs:
+            from tumblebot.sim.env import TumblerEnv
+            from tumblebot.sim.randomization import Randomization
 
+            self.envs[task] = TumblerEnv(task=task, randomization=Randomization(design=False),
+                                         **self.servo.env_kwargs())
+            controller = self.controllers[task]
+            self.actors[task] = make_actor(controller.kind, controller.name, task)
+        out = run_episode(self.envs[task], self.actors[task], seed,
+                          options={"design": Design.from_sequence(w, allow_out_of_bounds=True)})
+        return task, index, out.final_R, out.final_position
 
-def _env_and_policy(task: str) -> tuple[Any, Any]:
-    envs, policies = _state["envs"], _state["policies"]
-    if task not in envs:
-        from tumblebot.sim.env import TumblerEnv
-        from tumblebot.sim.policy import OnnxPolicy
-        from tumblebot.sim.randomization import Randomization
-
-        envs[task] = TumblerEnv(task=task, randomization=Randomization(design=False))
-        policies[task] = OnnxPolicy(Path(_state["policy_paths"][task]), task=task)
-    return envs[task], policies[task]
-
-
-def _run_job(job: Job) -> tuple[str, int, float]:
-    task, w, index, seed = job
-    env, policy = _env_and_policy(task)
-    obs, _ = env.reset(seed=seed, options={"design": Design.from_sequence(w, allow_out_of_bounds=True)})
-    info: dict[str, Any] = {}
-    for _ in range(env.episode_steps):
-        obs, _, _, truncated, info = env.step(policy.act(obs))
-        if truncated:
-            break
-    return task, index, float(info["final_R"])
+    def close(self) -> None:
+        for env in self.envs.values():
+            env.close()
+        self.envs.clear()
 
 
-def _close_worker() -> None:
-    for env in _state.get("envs", {}).values():
-        env.close()
-    _state.clear()
+_worker: _Worker | None = None  #: in a pool process
+
+
+def _init_worker(controllers: dict[str, Controller], servo: Servo) -> None:
+    global _worker
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
+    _worker = _Worker(controllers, servo)
+
+
+def _run_job(job: Job) -> Result:
+    assert _worker is not None, "pool process not initialised"
+    return _worker.run(job)
 
 
 class EpisodeRunner:
-    """Runs episodes of ONNX policies on any design; reuse it for many designs.
+    """Runs episodes on any design; reuse it for many designs. The package's one worker
+    pool: :func:`tumblebot.sim.evaluate.evaluate` runs on it too.
 
     Args:
-        policies: task name → ONNX policy path. Every task to be run needs one.
+        controllers: task name → what drives it: an ONNX policy path, or a
+            :class:`~tumblebot.sim.evaluate.Controller` (a policy, a gait or ``goto``).
+            Every task to be run needs one.
         workers: worker processes (1 runs in this process).
+        servo: the servo model of every episode (default: DC, the thesis's constants).
     """
 
-    def __init__(self, policies: dict[str, Path], workers: int = 1) -> None:
+    def __init__(self, controllers: Mapping[str, Path | str | Controller], workers: int = 1,
+                 servo: Servo | None = None) -> None:
         if workers < 1:
             raise SimError(f"workers={workers} must be at least 1")
-        from tumblebot.sim.policy import OnnxPolicy
-
-        for task, path in policies.items():
-            OnnxPolicy(path, task=get_task(task).name)  # fail fast, in this process, with a clear error
-        self.policies = {get_task(t).name: str(p) for t, p in policies.items()}
+        specs: dict[str, Controller] = {}
+        for task, c in controllers.items():
+            name = get_task(task).name
+            spec = c if isinstance(c, Controller) else Controller("onnx", str(c))
+            spec.check(name)  # fail fast, in this process, with a clear error
+            specs[name] = spec
+        self.controllers = specs
+        self.servo = servo or Servo()
         self.workers = workers
         self.episodes_run = 0
         self._pool: Any = None
+        self._local: _Worker | None = None
         if workers > 1:
             self._pool = mp.get_context("forkserver").Pool(workers, initializer=_init_worker,
-                                                            initargs=(self.policies,))
-        else:
-            _init_worker(self.policies, in_process=True)  # this process's Ctrl-C handling is left alone
+                                                            initargs=(self.controllers, self.servo))
+        else:  # in this process, whose Ctrl-C handling is left alone
+            self._local = _Worker(self.controllers, self.servo)
+
+    @property
+    def policies(self) -> dict[str, str]:
+        """Task → ONNX policy path, for the tasks a policy drives."""
+        return {t: c.name for t, c in self.controllers.items() if c.kind == "onnx"}
 
     def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
             on_result: Callable[[], None] | None = None) -> dict[str, np.ndarray]:
@@ -102,21 +118,27 @@ class EpisodeRunner:
 
         ``on_result`` is called after every episode, in this process: a safe point, where
         it may raise to stop (the pool is then left to :meth:`close`)."""
+        return {t: r for t, (r, _) in self.run_outcomes(design, tasks, start, stop, seed, on_result).items()}
+
+    def run_outcomes(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
+                     on_result: Callable[[], None] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Like :meth:`run`, with the final positions too: task → (R ``(N,)``, positions ``(N, 3)``)."""
         names = [get_task(t).name for t in tasks]
-        missing = [t for t in names if t not in self.policies]
+        missing = [t for t in names if t not in self.controllers]
         if missing:
-            raise SimError(f"no policy given for task(s) {', '.join(missing)}")
+            raise SimError(f"no controller given for task(s) {', '.join(missing)}")
         if not 0 <= start <= stop:
             raise SimError(f"episode range {start}..{stop} is empty or negative")
         jobs: list[Job] = [(t, design.as_tuple(), i, episode_seed(seed, i)) for t in names for i in range(start, stop)]
-        out = {t: np.full(stop - start, np.nan) for t in names}
-        results: Iterable[tuple[str, int, float]]
-        if self._pool is None:
-            results = map(_run_job, jobs)
+        out = {t: (np.full(stop - start, np.nan), np.full((stop - start, 3), np.nan)) for t in names}
+        results: Iterable[Result]
+        if self._local is not None:
+            results = map(self._local.run, jobs)
         else:
             results = self._pool.imap_unordered(_run_job, jobs, chunksize=max(1, len(jobs) // (4 * self.workers)))
-        for task, index, R in results:
-            out[task][index - start] = R
+        for task, index, R, position in results:
+            out[task][0][index - start] = R
+            out[task][1][index - start] = position
             self.episodes_run += 1
             if on_result is not None:
                 on_result()
@@ -127,8 +149,9 @@ class EpisodeRunner:
             self._pool.terminate()
             self._pool.join()
             self._pool = None
-        else:
-            _close_worker()
+        if self._local is not None:
+            self._local.close()
+            self._local = None
 
     def __enter__(self) -> EpisodeRunner:
         return self

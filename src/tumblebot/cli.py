@@ -252,7 +252,6 @@ def _optimize(args: argparse.Namespace) -> int:
         StopFlag,
         StopRequested,
         StudyConfig,
-        bundled_policies,
         format_best,
         format_xi,
         load_config,
@@ -261,6 +260,7 @@ def _optimize(args: argparse.Namespace) -> int:
         optimize,
         parse_tasks,
         parse_xi,
+        study_controllers,
     )
     from tumblebot.sim.policy import sha256_of
 
@@ -275,8 +275,11 @@ def _optimize(args: argparse.Namespace) -> int:
         raise OptimizeError(f"--episode-budget {args.episode_budget} must be at least 1")
     if args.json is not None:
         _check_writable(args.json, "--json")
-    policies = bundled_policies(objective.tasks)
-    config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()})
+    servo = _servo(args)
+    controllers = study_controllers("policy" if args.gait is None else args.gait, objective.tasks)
+    policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
+    config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
+                            controller="policy" if args.gait is None else args.gait, servo=servo)
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
     stop = StopFlag()
@@ -305,7 +308,7 @@ def _optimize(args: argparse.Namespace) -> int:
 
         runner = None
         try:
-            runner = EpisodeRunner(policies, workers=args.workers) if objective.tasks else None
+            runner = EpisodeRunner(controllers, workers=args.workers, servo=servo) if objective.tasks else None
             result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
                               episode_budget=args.episode_budget, should_stop=stop)
         except (StopRequested, KeyboardInterrupt):
@@ -336,8 +339,15 @@ def _report(args: argparse.Namespace) -> int:
         raise TumblebotError(f"-o {args.output} exists and is not a folder")
     _check_writable(args.output / "report.md", "-o")
 
+    servo = None
+    if args.motor_model is not None or args.stall_torque is not None:
+        from tumblebot.sim.constants import STALL_TORQUE
+        from tumblebot.sim.evaluate import Servo
+
+        servo = Servo(args.motor_model or "dc", STALL_TORQUE if args.stall_torque is None else args.stall_torque)
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
-                        seed=args.seed, slice_points=args.slice_points, progress=not args.quiet)
+                        seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
+                        controller=args.gait, servo=servo)
     print(f"wrote {path}")
     return 0
 
@@ -531,6 +541,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", choices=("thesis", "monotone"), default="thesis",
                    help="wrapper for R < 0: the thesis's R/(e+1)^xi or the monotone R*(e+1)^xi (default thesis)")
     p.add_argument("--json", type=Path, help="also write the study summary as JSON to this file")
+    p.add_argument("--gait", default=None, metavar="goto",
+                   help="drive the episodes with goto, the hand-written closed-loop navigation controller (navigation "
+                        "tasks), or a scripted gait, instead of each task's bundled policy; recorded in the study")
+    _add_servo_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_optimize)
 
@@ -549,6 +563,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
     p.add_argument("--seed", type=_seed, default=1, help="seed of the re-evaluation episodes, which should differ "
                                                        "from the studies' (default 1)")
+    p.add_argument("--gait", default=None, metavar="goto",
+                   help="re-evaluate every design with goto (or a gait) instead of the controller the studies used "
+                        "(default: theirs, which must then agree)")
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
+                   help="re-evaluate under this servo model (default: the studies', which must agree)")
+    p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
+                   help="re-evaluate with this stall torque (default: the studies')")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_report)
 

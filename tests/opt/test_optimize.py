@@ -428,3 +428,46 @@ def test_that_evaluate_checks_xi_before_the_episodes(tmp_path: Path) -> None:
     run = tb("evaluate", "--task", "nav-flat", "--design", "0.292,0.129,0.098,0.136", "--xi", "-1",
              "--episodes", "100000")
     assert run.returncode == 2 and "--xi" in run.stderr, run.stderr
+
+
+# ------------------------------------------------------------------ controller and servo of a study
+def test_that_a_study_records_its_controller_and_servo_and_refuses_another(tmp_path: Path) -> None:
+    storage = f"sqlite:///{tmp_path / 'g.db'}"
+    base = ["optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "2", "--batch", "2", "--storage", storage,
+            "--study", "g", "--quiet"]
+    run = tb(*base, "--gait", "goto", "--motor-model", "velocity", "--stall-torque", "10")
+    assert run.returncode == 0, run.stderr
+    config = load(tmp_path / "g.db", "g").user_attrs["tumblebot"]
+    assert (config["controller"], config["motor_model"], config["stall_torque"]) == ("goto", "velocity", 10.0)
+    for other in ([], ["--gait", "goto"], ["--gait", "goto", "--motor-model", "velocity"]):
+        refused = tb(*base, *other)
+        assert refused.returncode == 2 and "different objective" in refused.stderr, (other, refused.stderr)
+    rep = tb("report", "--storage", storage, "--study", "g", "-o", str(tmp_path / "r"), "--episodes", "2",
+             "--slice-points", "2", "--quiet")
+    assert rep.returncode == 0, rep.stderr
+    data = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert data["controller"] == "goto" and data["servo"] == {"motor_model": "velocity", "stall_torque": 10.0}
+
+
+def test_that_goto_is_refused_for_a_study_of_a_task_that_is_not_navigation(tmp_path: Path) -> None:
+    run = tb("optimize", "--tasks", "incline", "--xi", "0", "--trials", "2", "--batch", "2", "--gait", "goto",
+             "--storage", f"sqlite:///{tmp_path / 'n.db'}", "--study", "n", "--quiet")
+    assert run.returncode == 2 and "not navigation" in run.stderr and not (tmp_path / "n.db").exists()
+
+
+def test_that_a_study_made_before_controllers_were_recorded_still_loads_as_policy(tmp_path: Path) -> None:
+    from tumblebot.sim.optimize import load_config
+
+    storage = f"sqlite:///{tmp_path / 'old.db'}"
+    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
+              "--study", "old", "--quiet").returncode == 0
+    study = load(tmp_path / "old.db", "old")
+    raw = dict(study.user_attrs["tumblebot"])
+    for key in ("controller", "motor_model", "stall_torque"):
+        raw.pop(key)
+    study.set_user_attr("tumblebot", raw)  # as a study of the last release stored it
+    config = load_config(load(tmp_path / "old.db", "old"))
+    assert config is not None and config.controller == "policy" and config.motor_model == "dc"
+    again = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
+               "--study", "old", "--quiet")
+    assert again.returncode == 0, again.stderr

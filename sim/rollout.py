@@ -1,0 +1,108 @@
+"""One episode rollout for the whole package, and the controllers it drives.
+
+:func:`run_episode` is the only loop that steps an environment through an episode for
+evaluation: :mod:`tumblebot.sim.evaluate` (one design, many episodes) and
+:mod:`tumblebot.sim.runner` (many designs, a pool that outlives them) both call it. A
+controller is made from its description (:class:`~tumblebot.sim.evaluate.Controller`) by
+:func:`make_actor`; every kind answers ``reset()`` at the start of an episode and
+``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the step,
+an ONNX policy only the observation, ``goto`` both and its own memory).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from tumblebot.sim.errors import SimError
+
+
+class Actor(Protocol):
+    def reset(self, seed: int) -> None: ...
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray: ...
+
+
+class _PolicyActor:
+    def __init__(self, path: Path, task: str) -> None:
+        from tumblebot.sim.policy import OnnxPolicy
+
+        self.policy = OnnxPolicy(path, task=task)
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        return self.policy.act(obs)
+
+
+class _GaitActor:
+    def __init__(self, name: str) -> None:
+        from tumblebot.sim.gaits import get_gait
+
+        self.gait = get_gait(name)
+        self.rng = np.random.default_rng(0)
+
+    def reset(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)  # the random gait's draws follow the episode
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        return np.array(self.gait(step, self.rng))
+
+
+class _GotoActor:
+    def __init__(self, task: str) -> None:
+        from tumblebot.sim.goto import GotoController, check_navigation_task
+
+        check_navigation_task(task)
+        self.goto = GotoController()
+
+    def reset(self, seed: int) -> None:
+        self.goto.reset()
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        return np.array(self.goto.act(obs, step))
+
+
+def make_actor(kind: str, name: str, task: str) -> Actor:
+    """``kind`` ``"onnx"`` (``name`` a policy file), ``"gait"`` (a gait name) or ``"goto"``."""
+    if kind == "onnx":
+        return _PolicyActor(Path(name), task)
+    if kind == "gait":
+        return _GaitActor(name)
+    if kind == "goto":
+        return _GotoActor(task)
+    raise SimError(f"unknown controller kind {kind!r}")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What an evaluation keeps of an episode."""
+
+    final_R: float
+    final_position: tuple[float, float, float]
+
+
+def run_episode(env: Any, actor: Actor, seed: int, options: dict[str, Any] | None = None,
+                on_step: Callable[[int, np.ndarray, np.ndarray, dict[str, Any]], None] | None = None) -> Outcome:
+    """Reset ``env`` with ``seed`` (and ``options``), drive it with ``actor`` to the end
+    of the episode, and return the final-state reward and position. ``on_step(step,
+    action, obs, info)`` sees every step, for callers that record the trajectory."""
+    obs, _ = env.reset(seed=seed, options=options)
+    actor.reset(seed)
+    info: dict[str, Any] = {}
+    for step in range(env.episode_steps):
+        action = actor.act(obs, step)
+        obs, _, terminated, truncated, info = env.step(action)
+        if on_step is not None:
+            on_step(step, action, obs, info)
+        if terminated or truncated:
+            break
+    if "final_R" not in info:
+        raise SimError("the episode ended without a final state (terminated early?)")
+    pos = info["final_position"]
+    return Outcome(float(info["final_R"]), (float(pos[0]), float(pos[1]), float(pos[2])))
