@@ -124,15 +124,19 @@ def _twin_world(args: argparse.Namespace) -> int:
     from tumblebot.sim.design import Design
 
     return run_world(parse_address(args.pose_to), parse_address(args.control), args.serial_link,
-                     Design.parse(args.design), args.seed)
+                     Design.parse(args.design), args.seed, servo=_servo_of(args))
 
 
 def _twin_run(args: argparse.Namespace) -> int:
     from tumblebot.host.twin import consistency, run_twin
     from tumblebot.sim.design import Design
 
+    servo = _servo_of(args)
+    from tumblebot.sim.evaluate import Controller
+
+    Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
     code = run_twin(args.out, args.points, args.per_point, args.radius, args.setpoint, args.heading,
-                    Design.parse(args.design), args.seed, args.policy)
+                    Design.parse(args.design), args.seed, args.policy, servo=servo)
     if code != 0:
         return code
     if args.check:
@@ -149,6 +153,21 @@ def _twin_check(args: argparse.Namespace) -> int:
     result = consistency(args.dir, args.sim_episodes)
     _print_consistency(result)
     return 0 if result["consistent"] else 1
+
+
+def _servo_of(args: argparse.Namespace) -> Any:
+    from tumblebot.sim.evaluate import Servo
+
+    return Servo(args.motor_model, args.stall_torque)
+
+
+def _add_servo(p: argparse.ArgumentParser) -> None:
+    from tumblebot.sim.constants import STALL_TORQUE
+
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
+                   help="the simulated world's servo model (default dc)")
+    p.add_argument("--stall-torque", type=float, default=STALL_TORQUE, metavar="N·m",
+                   help=f"the simulated servo's stall torque (default {STALL_TORQUE:.3f}, the thesis's constants)")
 
 
 def _print_consistency(r: dict[str, Any]) -> None:
@@ -208,7 +227,12 @@ def add_commands(sub: Any, positive_int: Any) -> None:
                        description="Simulator as world and robot, the real firmware in simavr, the real Pi agent "
                                    "and the real host controller, each its own process over the lab's links.")
     wsub = p.add_subparsers(dest="twin_command", required=True, metavar="{run,check,world}")
-    t = wsub.add_parser("run", help="run a trial set through the twin (and check it against pure simulation)")
+    t = wsub.add_parser("run", help="run a trial set through the twin (and check it against pure simulation)",
+                        description="Run a field-trial set through the digital twin: the simulator as world and "
+                                    "robot, the real firmware in simavr, the real Pi agent and the real host "
+                                    "controller, each its own process; then (--check) compare the final errors "
+                                    "with pure simulation from the same starts. Needs the agent extra (pyserial) "
+                                    "and Debian's avr-gcc and simavr (./dev.sh test installs them).")
     t.add_argument("--out", type=Path, required=True, help="trial-set folder")
     t.add_argument("--design", default="0.292,0.129,0.098,0.136", help="robot design (default: the ξ = 3 robot)")
     t.add_argument("--policy", default="nav-flat", help="nav-flat or an ONNX file")
@@ -220,6 +244,9 @@ def add_commands(sub: Any, positive_int: Any) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     t.add_argument("--check", action="store_true", help="then test consistency with pure simulation")
     t.add_argument("--sim-episodes", type=positive_int, default=16, help="simulated episodes per twin trial (16)")
+    _add_servo(t)
+    t.add_argument("--allow-servo-mismatch", action="store_true",
+                   help="run a policy under a servo other than the one it was trained under")
     t.set_defaults(func=_twin_run)
     c = wsub.add_parser("check", help="test a twin trial set for consistency with pure simulation")
     c.add_argument("dir", type=Path)
@@ -231,4 +258,5 @@ def add_commands(sub: Any, positive_int: Any) -> None:
     w.add_argument("--serial-link", type=Path, required=True, help="path for a symlink to the firmware's pty")
     w.add_argument("--design", required=True)
     w.add_argument("--seed", type=int, default=0)
+    _add_servo(w)
     w.set_defaults(func=_twin_world)

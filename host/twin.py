@@ -36,7 +36,7 @@ import numpy as np
 from tumblebot.errors import TumblebotError
 from tumblebot.host.mocap import encode_pose_datagram
 from tumblebot.sim.design import Design
-from tumblebot.sim.evaluate import episode_seed
+from tumblebot.sim.evaluate import Servo, episode_seed
 
 REPO = Path(__file__).resolve().parents[1]
 NEUTRAL_US = 1500.0
@@ -75,7 +75,7 @@ def pulse_to_command(width: float | None, mounting: float) -> float:
 
 
 def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
-              body: str = "tumbler", pose_rate: float = 100.0) -> int:
+              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None) -> int:
     """The world process: real-time physics, mocap out, servo pulses in. Runs until
     SIGTERM/SIGINT or a ``quit`` control datagram."""
     from tumblebot.sim.env import TumblerEnv
@@ -92,7 +92,8 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
         serial_link.unlink()
     serial_link.symlink_to(uno.pty)
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
-    env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)))
+    env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
+                     **(servo or Servo()).env_kwargs())
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
@@ -190,9 +191,10 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
 class TwinStack:
     """Starts the world and the agent as processes; the host is run against them."""
 
-    def __init__(self, workdir: Path, design: Design, seed: int) -> None:
+    def __init__(self, workdir: Path, design: Design, seed: int, servo: Servo | None = None) -> None:
         from tumblebot.host.link import new_key
 
+        servo = servo or Servo()
         self.workdir = workdir
         self.key = workdir / "agent.key"
         new_key(self.key)
@@ -207,7 +209,8 @@ class TwinStack:
         self.world = subprocess.Popen(
             [sys.executable, "-m", "tumblebot.cli", "twin", "world", "--pose-to", f"127.0.0.1:{self.pose_port}",
              "--control", f"127.0.0.1:{self.control_port}", "--serial-link", str(self.serial_link),
-             "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed)],
+             "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
+             "--motor-model", servo.model, "--stall-torque", repr(servo.stall_torque)],
             stdout=subprocess.PIPE, stderr=self.world_log, text=True)
         assert self.world.stdout is not None
         line = self.world.stdout.readline()
@@ -251,14 +254,33 @@ class TwinStack:
 
 
 def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tuple[float, float], heading: float,
-             design: Design, seed: int, policy: str, extra: list[str] | None = None) -> int:
-    """Run a trial set through the twin (the host as its own process). Returns its exit code."""
-    with tempfile.TemporaryDirectory(prefix="tumblebot-twin-") as tmp, TwinStack(Path(tmp), design, seed) as stack:
+             design: Design, seed: int, policy: str, extra: list[str] | None = None,
+             servo: Servo | None = None) -> int:
+    """Run a trial set through the twin (the host as its own process). Returns its exit code.
+    The world's servo is recorded in ``OUT/twin.json``, so :func:`consistency` simulates
+    under the same one."""
+    servo = servo or Servo()
+    with tempfile.TemporaryDirectory(prefix="tumblebot-twin-") as tmp, \
+            TwinStack(Path(tmp), design, seed, servo) as stack:
         cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--points", str(points),
                "--per-point", str(per_point), "--radius", str(radius), "--setpoint", f"{setpoint[0]},{setpoint[1]}",
                "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
                "--policy", policy, *stack.host_args(), *(extra or [])]
-        return subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
+        code = subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
+        if out.is_dir():
+            (out / "twin.json").write_text(json.dumps({"servo": servo.as_dict()}) + "\n")
+        return code
+
+
+def twin_servo(folder: Path) -> Servo:
+    """The servo a twin trial set's world ran (the default for sets made before it was recorded)."""
+    path = folder / "twin.json"
+    if not path.is_file():
+        return Servo()
+    try:
+        return Servo.from_card(json.loads(path.read_text()).get("servo") or {})
+    except (ValueError, AttributeError) as exc:
+        raise TwinError(f"{path} is not a twin record: {exc}") from None
 
 
 # ----------------------------------------------------------------------------- consistency
@@ -273,13 +295,14 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
     from tumblebot.host.trials import TrialPlan, load_index
     from tumblebot.sim.env import TumblerEnv
     from tumblebot.sim.frames import to_task_frame, yaw_quaternion
-    from tumblebot.sim.policy import OnnxPolicy
     from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.rollout import make_actor, run_episode
 
     plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
     index = load_index(folder)
-    policy = OnnxPolicy(Path(plan.policy), task=plan.task)
-    env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False))
+    actor = make_actor("onnx", plan.policy, plan.task)
+    env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
+                     **twin_servo(folder).env_kwargs())
     errors: list[float] = []
     try:
         for entry in index["trials"]:
@@ -289,13 +312,9 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
             yaw_task = 2 * math.atan2(quat[2], quat[3])
             for j in range(episodes_per_trial):
                 s = episode_seed(plan.seed, trial) if j == 0 else episode_seed(plan.seed + 1_000_003 * j, trial)
-                obs, _ = env.reset(seed=s, options={"start_xy": (float(pos[0]), float(pos[1])), "start_yaw": yaw_task})
-                info: dict[str, Any] = {}
-                for _ in range(env.episode_steps):
-                    obs, _, _, truncated, info = env.step(policy.act(obs))
-                    if truncated:
-                        break
-                fx, fy = info["final_position"][:2]
+                outcome = run_episode(env, actor, s, options={"start_xy": (float(pos[0]), float(pos[1])),
+                                                              "start_yaw": yaw_task})
+                fx, fy = outcome.final_position[:2]
                 errors.append(math.hypot(fx, fy))
     finally:
         env.close()

@@ -34,6 +34,8 @@ class Controller:
 
     kind: str
     name: str
+    #: use a policy under a servo other than the one its model card says it was trained under
+    allow_servo_mismatch: bool = False
 
     @classmethod
     def of_gait(cls, name: str) -> Controller:
@@ -45,12 +47,19 @@ class Controller:
             return Path(self.name).name
         return "goto" if self.kind == "goto" else f"gait:{self.name}"
 
-    def check(self, task: str) -> None:
-        """Fail fast, in this process, with one clear error."""
+    def check(self, task: str, servo: Servo | None = None) -> None:
+        """Fail fast, in this process, with one clear error. A policy is refused under a
+        servo other than the one it was trained under (its model card's ``servo``; cards
+        without one were trained under the default), unless ``allow_servo_mismatch``."""
         if self.kind == "onnx":
-            from tumblebot.sim.policy import OnnxPolicy
+            from tumblebot.sim.policy import OnnxPolicy, PolicyError
 
-            OnnxPolicy(Path(self.name), task=get_task(task).name)
+            policy = OnnxPolicy(Path(self.name), task=get_task(task).name)
+            trained = Servo.from_card(policy.card.get("servo") or {})
+            if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
+                raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
+                                  f"not the {servo.describe()}: train one under that servo (tumblebot train "
+                                  "--motor-model/--stall-torque), or pass --allow-servo-mismatch to use it anyway")
         elif self.kind == "goto":
             check_navigation_task(task)
         elif self.kind == "gait":
@@ -72,6 +81,13 @@ class Servo:
             raise SimError(f"motor model {self.model!r} must be 'dc' or 'velocity'")
         if not (math.isfinite(self.stall_torque) and 0.0 < self.stall_torque <= 100.0):
             raise SimError(f"stall torque {self.stall_torque!r} N·m must be in (0, 100]")
+
+    @classmethod
+    def from_card(cls, data: dict[str, Any]) -> Servo:
+        return cls(str(data.get("motor_model", "dc")), float(data.get("stall_torque", STALL_TORQUE)))
+
+    def same_as(self, other: Servo) -> bool:
+        return self.model == other.model and math.isclose(self.stall_torque, other.stall_torque, rel_tol=1e-6)
 
     def env_kwargs(self) -> dict[str, Any]:
         return {"motor_model": self.model, "stall_torque": self.stall_torque}
@@ -152,7 +168,7 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
         raise SimError(f"workers={workers} must be at least 1")
     if seed < 0:
         raise SimError(f"seed={seed} must be a non-negative integer")
-    controller.check(spec.name)
+    controller.check(spec.name, servo)
     from tumblebot.sim.runner import EpisodeRunner
 
     start = time.perf_counter()

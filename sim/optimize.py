@@ -502,11 +502,12 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
     return max(cands, key=lambda c: c.value) if cands else None
 
 
-def study_controllers(controller: str, tasks: list[str]) -> dict[str, Controller]:
+def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False
+                      ) -> dict[str, Controller]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy) or a gait name
     (``goto`` included), as a task → :class:`Controller` map, each checked for its task."""
     if controller == "policy":
-        return {t: Controller("onnx", str(p)) for t, p in bundled_policies(tasks).items()}
+        return {t: Controller("onnx", str(p), allow_servo_mismatch) for t, p in bundled_policies(tasks).items()}
     out = {t: Controller.of_gait(controller) for t in tasks}
     for t, c in out.items():
         c.check(t)

@@ -116,10 +116,11 @@ class _Evaluator:
     """Evaluates designs on the report's episodes, with a cache and a progress bar."""
 
     def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
-                 controller: str = "policy", servo: Servo | None = None) -> None:
+                 controller: str = "policy", servo: Servo | None = None, allow_servo_mismatch: bool = False) -> None:
         from tumblebot.sim.runner import EpisodeRunner
 
-        self.runner = (EpisodeRunner(study_controllers(controller, tasks), workers=workers, servo=servo)
+        self.runner = (EpisodeRunner(study_controllers(controller, tasks, allow_servo_mismatch), workers=workers,
+                                     servo=servo)
                        if tasks else None)
         self.episodes, self.seed = episodes, seed
         self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
@@ -196,7 +197,8 @@ def _common_controller(results: list[StudyResult], controller: str | None, servo
 
 def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
                  workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
-                 controller: str | None = None, servo: Servo | None = None) -> Path:
+                 controller: str | None = None, servo: Servo | None = None,
+                 allow_servo_mismatch: bool = False) -> Path:
     """Evaluate and plot the studies; returns the path of ``report.md``.
 
     Every design is re-evaluated with one controller and one servo, so the tables compare
@@ -227,7 +229,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     total = len(usable) + 9 + len(PARAMETERS) * slice_points + len(universal_tasks) ** 2
     out_dir.mkdir(parents=True, exist_ok=True)
     controller, servo = _common_controller(results, controller, servo)
-    ev = _Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo)
+    ev = _Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo, allow_servo_mismatch)
     try:
         for r in usable:
             r.best = ev(r.extra["best_design"], r.tasks)

@@ -89,14 +89,14 @@ class EpisodeRunner:
                  servo: Servo | None = None) -> None:
         if workers < 1:
             raise SimError(f"workers={workers} must be at least 1")
+        self.servo = servo or Servo()
         specs: dict[str, Controller] = {}
         for task, c in controllers.items():
             name = get_task(task).name
             spec = c if isinstance(c, Controller) else Controller("onnx", str(c))
-            spec.check(name)  # fail fast, in this process, with a clear error
+            spec.check(name, self.servo)  # fail fast, in this process, with a clear error
             specs[name] = spec
         self.controllers = specs
-        self.servo = servo or Servo()
         self.workers = workers
         self.episodes_run = 0
         self._pool: Any = None

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.errors import TumblebotError
+from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.randomization import Randomization
 
 
@@ -38,6 +39,9 @@ class TrainConfig:
         init_from: checkpoint whose policy and value weights started this run (a warm
             start from another task's run, ``tumblebot train --init-from``), or None.
         init_from_steps: training steps that checkpoint had already taken.
+        motor_model, stall_torque: the servo the policy is trained under (see
+            :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used
+            under another servo unless asked to.
     """
 
     task: str = "nav-flat"
@@ -59,6 +63,8 @@ class TrainConfig:
     state_weight: float = 1.0
     progress_weight: float = 5.0
     tumbling_designs_only: bool = False
+    motor_model: str = "dc"
+    stall_torque: float = STALL_TORQUE
     init_from: str | None = None
     init_from_steps: int = 0
 
@@ -79,6 +85,10 @@ class TrainConfig:
             raise TrainingError(f"training config init_from={self.init_from!r} must be a checkpoint path or null")
         if not isinstance(self.init_from_steps, int) or self.init_from_steps < 0:
             raise TrainingError(f"training config init_from_steps={self.init_from_steps!r} must be >= 0")
+        if self.motor_model not in ("dc", "velocity"):
+            raise TrainingError(f"motor_model {self.motor_model!r} must be 'dc' or 'velocity'")
+        if not isinstance(self.stall_torque, (int, float)) or not 0 < self.stall_torque <= 100:
+            raise TrainingError(f"stall_torque {self.stall_torque!r} N·m must be in (0, 100]")
         if not isinstance(self.tumbling_designs_only, bool):
             raise TrainingError(f"training config tumbling_designs_only={self.tumbling_designs_only!r} "
                                 "must be true or false")

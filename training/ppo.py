@@ -37,6 +37,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 from tqdm import tqdm
 
+from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
@@ -46,7 +47,8 @@ CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
 
 
 def make_env(task: str, state_weight: float, progress_weight: float,
-             randomization: Randomization | None = None) -> TumblerEnv:
+             randomization: Randomization | None = None, motor_model: str = "dc",
+             stall_torque: float = STALL_TORQUE) -> TumblerEnv:
     """Environment factory, run inside each worker process."""
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:
@@ -54,12 +56,13 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                      randomization=randomization)
+                      randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
+                      stall_torque=stall_torque)
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight,
-                                                config.randomization())
+                                                config.randomization(), config.motor_model, config.stall_torque)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

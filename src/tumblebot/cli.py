@@ -132,6 +132,7 @@ def _train(args: argparse.Namespace) -> int:
     from tumblebot.training.ppo import train
 
     overrides = {k: v for k, v in (("total_steps", args.steps), ("n_envs", args.envs), ("seed", args.seed),
+                                   ("motor_model", args.motor_model), ("stall_torque", args.stall_torque),
                                    ("checkpoint_every", args.checkpoint_every),
                                    ("init_from", None if args.init_from is None else str(args.init_from)))
                  if v is not None}
@@ -208,8 +209,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         path = args.policy or bundled_policy(task.name)
         if args.policy is None and not path.is_file():
             raise PolicyError(f"no bundled policy for {task.name} ({path.name}); pass --policy FILE")
-        controller = Controller("onnx", str(path))
-    controller.check(task.name)
+        controller = Controller("onnx", str(path), allow_servo_mismatch=args.allow_servo_mismatch)
+    controller.check(task.name, servo)
     if args.csv is not None:
         _check_writable(args.csv, "--csv")
     result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json,
@@ -276,7 +277,10 @@ def _optimize(args: argparse.Namespace) -> int:
     if args.json is not None:
         _check_writable(args.json, "--json")
     servo = _servo(args)
-    controllers = study_controllers("policy" if args.gait is None else args.gait, objective.tasks)
+    controllers = study_controllers("policy" if args.gait is None else args.gait, objective.tasks,
+                                    args.allow_servo_mismatch)
+    for task, c in controllers.items():
+        c.check(task, servo)
     policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
                             controller="policy" if args.gait is None else args.gait, servo=servo)
@@ -347,7 +351,7 @@ def _report(args: argparse.Namespace) -> int:
         servo = Servo(args.motor_model or "dc", STALL_TORQUE if args.stall_torque is None else args.stall_torque)
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
-                        controller=args.gait, servo=servo)
+                        controller=args.gait, servo=servo, allow_servo_mismatch=args.allow_servo_mismatch)
     print(f"wrote {path}")
     return 0
 
@@ -371,6 +375,11 @@ def _check_writable(path: Path, flag: str) -> None:
         raise TumblebotError(f"{flag} {path}: cannot write in {probe}")
     if path.exists() and not os.access(path, os.W_OK):
         raise TumblebotError(f"{flag} {path} is not writable")
+
+
+def _add_mismatch_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--allow-servo-mismatch", action="store_true",
+                   help="use a policy under a servo other than the one its model card says it was trained under")
 
 
 def _add_servo_arguments(p: argparse.ArgumentParser) -> None:
@@ -478,6 +487,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="JSON file of TrainConfig fields")
     p.add_argument("--run-dir", type=Path, default=None, help="run folder (default runs/TASK-TIMESTAMP)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint")
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
+                   help="servo model to train under (default dc; recorded in the model card)")
+    p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
+                   help="servo stall torque to train under (default 0.582, the thesis's motor constants)")
     p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
                    help="start a new run from the weights of another run's checkpoint (e.g. "
                         "runs/distance-flat/latest.zip for incline); the networks must match")
@@ -510,6 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluate a scripted gait (forward, spin, …) or goto, the closed-loop navigation "
                         "controller, instead of a policy")
     _add_servo_arguments(p)
+    _add_mismatch_argument(p)
     p.add_argument("--xi", type=float, default=None, help="also report f = R/(e+1)^xi")
     p.add_argument("--csv", type=Path, default=None, help="write per-episode results to this CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object (mean_R, ci95, e, episodes, …)")
@@ -545,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drive the episodes with goto, the hand-written closed-loop navigation controller (navigation "
                         "tasks), or a scripted gait, instead of each task's bundled policy; recorded in the study")
     _add_servo_arguments(p)
+    _add_mismatch_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_optimize)
 
@@ -570,6 +585,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="re-evaluate under this servo model (default: the studies', which must agree)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
                    help="re-evaluate with this stall torque (default: the studies')")
+    _add_mismatch_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_report)
 
