@@ -5,6 +5,9 @@
 #                   a short design optimisation with the bundled policies, and its report
 #   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types and all tests
 #                   (firmware build with avr-gcc, C++ host tests with ctest, then pytest)
+#   ./dev.sh test --fast
+#                   the developers' loop (a few minutes): ruff, mypy and the tests marked neither
+#                   slow nor hil (no firmware build, no simavr); extra arguments go to pytest
 #   ./dev.sh setup  set up .venv with everything, run nothing
 #
 # Works on a fresh Debian/Ubuntu machine with Python 3.11: missing system packages are
@@ -71,9 +74,19 @@ case "$cmd" in
         ensure_venv "train,opt,host,dev,agent"
         ;;
     test)
+        shift
+        if [[ ${1:-} == "--fast" ]]; then
+            shift
+            ensure_venv "train,opt,host,dev,agent"
+            echo "dev.sh: ruff"
+            "$VENV/bin/ruff" check .
+            echo "dev.sh: mypy"
+            "$VENV/bin/mypy"
+            echo "dev.sh: pytest (fast: not slow, not hil)"
+            exec "$VENV/bin/python" -m pytest -m "not slow and not hil" "$@"
+        fi
         apt_install $FIRMWARE_PACKAGES postgresql
         ensure_venv "train,opt,host,dev,agent"
-        shift
         echo "dev.sh: firmware build (Debian avr-gcc)"
         make -s -C firmware/arduino
         echo "dev.sh: firmware host tests (CMake/ctest, ASan+UBSan)"
@@ -89,7 +102,7 @@ case "$cmd" in
         "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n "2,12p" "$0"
+        sed -n "2,15p" "$0"
         exit 2
         ;;
 esac

@@ -1,10 +1,13 @@
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-import tumblebot  # noqa: F401  (registers the environments)
+import tumblebot.sim  # noqa: F401  (registers the environments)
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, TumblerEnv
 from tumblebot.sim.errors import SimError, UnknownTaskError
@@ -29,7 +32,7 @@ def rollout(env: TumblerEnv, seed: int, actions: list[tuple[int, int]]) -> tuple
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_that_importing_tumblebot_registers_each_task_with_gymnasium(env_id: str) -> None:
+def test_that_importing_tumblebot_sim_registers_each_task_with_gymnasium(env_id: str) -> None:
     env = gym.make(env_id)
     try:
         assert env.action_space == gym.spaces.MultiDiscrete([3, 3])
@@ -217,3 +220,16 @@ def test_that_rgb_array_rendering_works_headless() -> None:
         assert frame.std() > 5  # not a blank image
     finally:
         env.close()
+
+
+def test_that_importing_tumblebot_imports_no_simulator() -> None:
+    code = ("import sys, tumblebot, tumblebot.pi_agent.protocol; "
+            "print(sorted(m for m in sys.modules if m.startswith(('tumblebot.sim', 'pybullet', 'gymnasium'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60).stdout
+    assert out.strip() == "[]", out
+
+
+def test_that_naming_the_module_in_the_id_registers_the_tasks() -> None:
+    code = "import gymnasium as gym; env = gym.make('tumblebot.sim:tumblebot/NavFlat-v0'); print(env.spec.id)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120).stdout
+    assert out.strip() == "tumblebot/NavFlat-v0"
