@@ -7,7 +7,7 @@
 #                   (firmware build with avr-gcc, C++ host tests with ctest, then pytest)
 #   ./dev.sh test --fast
 #                   the developers' loop (a few minutes): ruff, mypy and the tests marked neither
-#                   slow nor hil (no firmware build, no simavr); extra arguments go to pytest
+#                   slow nor hil (nothing runs in simavr); extra arguments go to pytest
 #   ./dev.sh setup  set up .venv with everything, run nothing
 #
 # Works on a fresh Debian/Ubuntu machine with Python 3.11: missing system packages are
