@@ -23,6 +23,18 @@ def _xy(text: str) -> tuple[float, float]:
     return x, y
 
 
+def say(message: str) -> None:
+    """One line to stdout in one write (the log thread may print ``@written`` lines too)."""
+    sys.stdout.write(message + "\n")
+    sys.stdout.flush()
+
+
+def say_status(message: str) -> None:
+    """A live status line: rewritten in place; an empty message ends it."""
+    sys.stdout.write(f"\r{message}" if message else "\n")
+    sys.stdout.flush()
+
+
 def _policy_path(name: str) -> Path:
     from tumblebot.sim.policy import PolicyError, bundled_policy
 
@@ -45,11 +57,8 @@ def _trial_run(args: argparse.Namespace) -> int:
     task = "nav-flat"
     policy_path = _policy_path(args.policy)
     policy = OnnxPolicy(policy_path, task=task)
-    try:
-        config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
-                                  agent_timeout=args.agent_timeout, max_speed=args.max_speed)
-    except ValueError as exc:
-        raise TumblebotError(str(exc)) from None
+    config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
+                              agent_timeout=args.agent_timeout, max_speed=args.max_speed)
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
                      design, args.seed, config)
     key = load_host_key(args.key)  # everything is checked before the trial set is created or touched
@@ -62,7 +71,7 @@ def _trial_run(args: argparse.Namespace) -> int:
         source.close()
         raise
     agent = AgentClient(address, key)
-    placer = TwinPlacer(twin) if twin else OperatorPlacer(source)
+    placer = TwinPlacer(twin) if twin else OperatorPlacer(source, out=say, status=say_status)
     controller = Controller(source, agent, policy, plan.setpoint, plan.heading, config)
 
     def on_logged(seq: int) -> None:
@@ -71,7 +80,8 @@ def _trial_run(args: argparse.Namespace) -> int:
             sys.stdout.flush()
 
     try:
-        index = run_trial_set(args.out, plan, controller, placer, agent_wait=args.agent_wait, on_logged=on_logged)
+        index = run_trial_set(args.out, plan, controller, placer, out=say, agent_wait=args.agent_wait,
+                              on_logged=on_logged)
     except KeyboardInterrupt:
         print(f"\nstopped; the robot was told to stop. Finished trials are in {args.out}/index.json; "
               "run the same command to resume.", file=sys.stderr)
@@ -211,7 +221,7 @@ def add_commands(sub: Any, positive_int: Any) -> None:
     r.set_defaults(func=_trial_run)
 
     a = tsub.add_parser("analyze", help="setpoint errors, CIs, a t-test against a baseline, trajectories",
-                        description="Report the final setpoint error per start point and overall with 95 %% CIs, a "
+                        description="Report the final setpoint error per start point and overall with 95 % CIs, a "
                                     "Welch t-test against a baseline trial set or published numbers (the thesis: "
                                     "0.433 m over 100 trials), e(w) of each robot, and a PNG of the trajectories.")
     a.add_argument("dir", type=Path, help="trial-set folder")

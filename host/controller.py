@@ -21,12 +21,17 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.errors import TumblebotError
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import Pose, PoseFilter, PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
 from tumblebot.sim.frames import to_task_frame
 
 COMPLETE = "complete"
+
+
+class ControllerError(TumblebotError):
+    """A controller configuration that cannot work (a non-positive period, no steps, …)."""
 
 
 @dataclass(frozen=True)
@@ -45,9 +50,9 @@ class ControllerConfig:
                      "first_pose_timeout"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"controller {name}={value!r} must be a positive number")
+                raise ControllerError(f"controller {name}={value!r} must be a positive number")
         if self.steps < 1:
-            raise ValueError(f"controller steps={self.steps} must be at least 1")
+            raise ControllerError(f"controller steps={self.steps} must be at least 1")
 
 
 @dataclass

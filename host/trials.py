@@ -18,7 +18,6 @@ import hashlib
 import json
 import math
 import socket
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -41,10 +40,8 @@ class TrialError(TumblebotError):
     """A trial set that cannot be run or analysed as asked."""
 
 
-def say(message: str) -> None:
-    """One line to stdout in one write (the log thread may print ``@written`` lines too)."""
-    sys.stdout.write(message + "\n")
-    sys.stdout.flush()
+def _quiet(message: str) -> None:
+    """The default for ``out`` callbacks: library code prints nothing; the CLI passes its own."""
 
 
 @dataclass(frozen=True)
@@ -134,8 +131,10 @@ class OperatorPlacer(Placer):
     """Guides a person: where to put the robot, and its live distance to that spot."""
 
     def __init__(self, source: PoseSource, tolerance: float = 0.10, settle: float = 1.0,
-                 out: Callable[[str], None] = say) -> None:
-        self.source, self.tolerance, self.settle, self.out = source, tolerance, settle, out
+                 out: Callable[[str], None] = _quiet, status: Callable[[str], None] = _quiet) -> None:
+        """``out`` gets whole lines (instructions); ``status`` a live line that replaces
+        the previous one (the distance to the start point, twice a second), then ``""``."""
+        self.source, self.tolerance, self.settle, self.out, self.status = source, tolerance, settle, out, status
 
     def place(self, trial: int, point: tuple[float, float], yaw: float) -> None:
         self.out(f"place the robot at ({point[0]:+.2f}, {point[1]:+.2f}) m, facing any way; the trial starts when "
@@ -147,12 +146,11 @@ class OperatorPlacer(Placer):
                 d = math.hypot(pose.position[0] - point[0], pose.position[1] - point[1])
                 now = time.monotonic()
                 if now - last_print > 0.5:
-                    sys.stdout.write(f"\r  distance to the start point: {d:5.2f} m ")
-                    sys.stdout.flush()
+                    self.status(f"  distance to the start point: {d:5.2f} m ")
                     last_print = now
                 inside_since = (inside_since or now) if d <= self.tolerance else None
                 if inside_since is not None and now - inside_since >= self.settle:
-                    sys.stdout.write("\n")
+                    self.status("")
                     return
 
 
@@ -177,7 +175,7 @@ class TwinPlacer(Placer):
 
 # ----------------------------------------------------------------------------- running
 def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer: Placer,
-                  out: Callable[[str], None] = say, agent_wait: float = 300.0,
+                  out: Callable[[str], None] = _quiet, agent_wait: float = 300.0,
                   on_logged: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run every unfinished trial of the set. Returns the index."""
     index = load_index(folder)

@@ -21,7 +21,6 @@ import multiprocessing
 import os
 import shutil
 import signal
-import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -44,6 +43,15 @@ from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import TumblerFeaturesExtractor
 
 CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped training; the checkpoint at ``steps`` is saved in ``run_dir``."""
+
+    def __init__(self, steps: int, run_dir: Path) -> None:
+        super().__init__(f"interrupted at {steps} steps; checkpoint saved. Continue with: "
+                         f"tumblebot train --resume --run-dir {run_dir}")
+        self.steps, self.run_dir = steps, run_dir
 
 
 def make_env(task: str, state_weight: float, progress_weight: float,
@@ -258,9 +266,7 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         callback.save()
     except KeyboardInterrupt:
         callback.save()
-        print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved. Continue with: "
-              f"tumblebot train --resume --run-dir {run_dir}", file=sys.stderr)
-        raise
+        raise TrainingInterrupted(model.num_timesteps, run_dir) from None
     finally:
         signal.signal(signal.SIGTERM, previous_term)
         signal.signal(signal.SIGINT, previous_int)

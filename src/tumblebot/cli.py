@@ -114,6 +114,16 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
+    from tumblebot.training.ppo import TrainingInterrupted
+
+    try:
+        return _train_run(args)
+    except TrainingInterrupted as stopped:
+        print(f"\n{stopped}", file=sys.stderr)
+        return 130
+
+
+def _train_run(args: argparse.Namespace) -> int:
     from tumblebot.sim.tasks import get_task
 
     run_dir: Path | None = args.run_dir
@@ -594,7 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_host_commands(sub, _positive_int)
 
     p = sub.add_parser("demo", help="scripted episodes, the bundled policies and the power table",
-                       description="What exists so far, in one minute: a scripted episode of each of "
+                       description="A tour of the simulator in about a minute: a scripted episode of each of "
                                    "the four tasks, the bundled policies on the same robot, and the "
                                    "power model against thesis Table 3.1.")
     p.add_argument("--video-dir", type=Path, default=None, help="also write one GIF per task here")
