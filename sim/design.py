@@ -65,7 +65,8 @@ class Design:
             if not self.allow_out_of_bounds and not lo <= value <= hi:
                 raise DesignError(
                     f"design parameter {name}={value} m is outside its bound "
-                    f"[{lo}, {hi}] m (pass --allow-out-of-bounds on the command line, or allow_out_of_bounds=True in Python, to accept it)"
+                    f"[{lo}, {hi}] m (pass --allow-out-of-bounds on the command line, or "
+                    "allow_out_of_bounds=True in Python, to accept it)"
                 )
             object.__setattr__(self, name, value)
 
