@@ -806,7 +806,8 @@ def study_summary(study: optuna.Study) -> dict[str, Any]:
     return {
         "study": study.study_name,
         "config": asdict(config),
-        "trials": sum(t.state == TrialState.COMPLETE and not _is_infeasible(t) for t in trials),
+        "trials": counted_trials(study),  #: what the terminal says: finished, infeasible and running ones
+        "feasible": sum(t.state == TrialState.COMPLETE and not _is_infeasible(t) for t in trials),
         "infeasible": sum(_is_infeasible(t) for t in trials),
         "interrupted": sum(bool(t.user_attrs.get("interrupted")) for t in trials),
         "episodes": episode_count(study),

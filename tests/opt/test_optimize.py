@@ -471,3 +471,39 @@ def test_that_a_study_made_before_controllers_were_recorded_still_loads_as_polic
     again = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
                "--study", "old", "--quiet")
     assert again.returncode == 0, again.stderr
+
+
+def test_that_optimize_json_counts_the_trials_the_terminal_prints(tmp_path: Path) -> None:
+    out = tmp_path / "s.json"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "6", "--storage",
+             f"sqlite:///{tmp_path / 'j.db'}", "--study", "j", "--json", str(out), "--quiet")
+    assert run.returncode == 0, run.stderr
+    printed = int(run.stdout.split(" trials in study")[0].split()[-1])
+    summary = json.loads(out.read_text())
+    assert summary["trials"] == printed == 6
+    assert summary["feasible"] + summary["infeasible"] == 6
+
+
+def test_that_optuna_dashboard_opens_a_study_from_the_same_storage_url(tmp_path: Path) -> None:
+    from wsgiref.util import setup_testing_defaults
+
+    from optuna_dashboard import wsgi
+
+    storage = f"sqlite:///{tmp_path / 'dash.db'}"
+    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
+              "--study", "dash", "--quiet").returncode == 0
+    app = wsgi(storage)
+
+    def get(path: str) -> dict:  # type: ignore[type-arg]
+        environ: dict[str, object] = {}
+        setup_testing_defaults(environ)
+        environ.update(PATH_INFO=path, REQUEST_METHOD="GET")
+        status: list[str] = []
+        body = b"".join(app(environ, lambda s, h, exc=None: status.append(s)))  # type: ignore[arg-type]
+        assert status == ["200 OK"], (path, status, body[:200])
+        return json.loads(body)  # type: ignore[no-any-return]
+
+    summaries = get("/api/studies")["study_summaries"]
+    assert [s["study_name"] for s in summaries] == ["dash"]
+    detail = get(f"/api/studies/{summaries[0]['study_id']}")
+    assert len(detail["trials"]) == 3
