@@ -26,9 +26,11 @@ from tumblebot.sim.optimize import (
     best_candidate,
     episode_count,
     format_xi,
+    full_batch_results,
     load_config,
     load_study,
     open_storage,
+    promotions,
     study_controllers,
 )
 from tumblebot.sim.power import energy_per_metre
@@ -148,6 +150,8 @@ class _Evaluator:
 
     def close(self) -> None:
         if self.bar is not None:
+            self.bar.n = self.bar.total  # every design is evaluated (cached ones count once)
+            self.bar.refresh()
             self.bar.close()
         if self.runner is not None:
             self.runner.close()
@@ -170,6 +174,9 @@ def _load(storage: Any, name: str) -> StudyResult:
                        "batch": t.user_attrs.get("batch", 0), "datetime": t.datetime_complete})
     best = best_candidate(study)
     result = StudyResult(name, config, objective, tasks, trials, episode_count(study))
+    full = sorted(full_batch_results(study), key=lambda c: c.trial)
+    result.extra["full_batch"] = [(c.trial, c.value) for c in full]
+    result.extra["promoted"] = sorted(promotions(study))
     if best is not None:
         result.best_trial, result.study_value = best.trial, best.value
         result.extra["best_design"] = best.design
@@ -379,11 +386,21 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
 
     fig, axes = plt.subplots(len(results), 1, figsize=(7, 2.6 * len(results)), squeeze=False)
     for ax, r in zip(axes[:, 0], results, strict=True):
+        screened = r.config.screen_batch < r.config.batch
         n = [t["number"] for t in r.trials]
         v = [t["value"] for t in r.trials]
-        ax.scatter(n, v, s=8, alpha=0.6, label="trial (its batch)")
-        if v:
-            ax.plot(n, np.maximum.accumulate(v), color="C3", label="best so far")
+        ax.scatter(n, v, s=8, alpha=0.5, color="C0",
+                   label=f"trial, on its {r.config.screen_batch}-episode screening batch" if screened
+                   else f"trial ({r.config.batch} episodes)")
+        full = r.extra.get("full_batch", [])
+        promoted = set(r.extra.get("promoted", []))
+        marked = [(k, val) for k, val in full if k in promoted]
+        if marked:
+            ax.scatter(*zip(*marked, strict=True), s=40, marker="D", facecolors="none", edgecolors="C2",
+                       label=f"promoted: on the full {r.config.batch}-episode batch")
+        if full:
+            ks, vals = zip(*full, strict=True)
+            ax.step(ks, np.maximum.accumulate(vals), where="post", color="C3", label="best full-batch value so far")
         ax.axvline(r.config.startup - 0.5, color="grey", ls=":", lw=1, label="GP takes over")
         ax.set_title(f"{r.name}: {r.objective.describe()}", fontsize=9)
         ax.set_xlabel("trial")
@@ -442,9 +459,13 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
 
 
 def _heat(ax: Any, xs: np.ndarray, ys: np.ndarray, E: np.ndarray, xl: str, yl: str, title: str) -> None:
-    masked = np.ma.masked_invalid(np.where(np.isfinite(E), E, np.nan))
-    im = ax.pcolormesh(xs, ys, masked, shading="auto", cmap="viridis")
-    ax.figure.colorbar(im, ax=ax, label="e (W/m)")
+    finite = np.where(np.isfinite(E), E, np.nan)
+    masked = np.ma.masked_invalid(finite)
+    # e(w) grows without bound near the no-tumble boundary: clip the colour scale at the 90th
+    # percentile so the rest of the map is readable (values above it share the top colour).
+    vmax = float(np.nanpercentile(finite, 90)) if np.isfinite(finite).any() else None
+    im = ax.pcolormesh(xs, ys, masked, shading="auto", cmap="viridis", vmax=vmax)
+    ax.figure.colorbar(im, ax=ax, label="e (W/m), clipped at the 90th percentile", extend="max")
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
     ax.set_title(title + " (white: cannot tumble)", fontsize=9)
