@@ -55,8 +55,19 @@ def _trial_run(args: argparse.Namespace) -> int:
 
     design = Design.parse(args.design)
     task = "nav-flat"
-    policy_path = _policy_path(args.policy)
-    policy = OnnxPolicy(policy_path, task=task)
+    policy: Any
+    policy_path: Path | str
+    if args.gait is not None:
+        if args.policy is not None:
+            raise TumblebotError("give --policy or --gait, not both")
+        if args.gait != "goto":
+            raise TumblebotError(f"--gait {args.gait!r}: the host drives trials with a policy or with goto")
+        from tumblebot.sim.goto import GotoPolicy
+
+        policy, policy_path = GotoPolicy(args.steps), "goto"
+    else:
+        policy_path = _policy_path(args.policy or "nav-flat")
+        policy = OnnxPolicy(policy_path, task=task)
     config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
                               agent_timeout=args.agent_timeout, max_speed=args.max_speed)
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
@@ -202,7 +213,9 @@ def add_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
     r.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
     r.add_argument("--design", required=True, help="the robot's design x,y,z,l (m), for its e(w) and the records")
-    r.add_argument("--policy", default="nav-flat", help="nav-flat (the bundled policy) or an ONNX file")
+    r.add_argument("--policy", default=None, help="nav-flat (the bundled policy, the default) or an ONNX file")
+    r.add_argument("--gait", default=None, metavar="goto",
+                   help="drive the trials with goto, the hand-written closed-loop controller, instead of a policy")
     r.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="lab-frame goal X,Y (default 0,0)")
     r.add_argument("--heading", type=float, default=0.0, help="lab-frame heading (rad) of the task frame's +x")
     r.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")

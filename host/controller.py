@@ -144,6 +144,9 @@ class Controller:
         # was being placed (they show where it was, not where it is).
         self.filter = PoseFilter(cfg.max_speed, cfg.lost_after)
         self.drain()
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):  # a controller with memory (goto) starts every trial afresh
+            reset()
 
         def event(name: str, detail: str = "") -> None:
             if log is not None:

@@ -14,7 +14,6 @@ continues with the next unfinished trial.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import socket
@@ -87,10 +86,6 @@ class TrialPlan:
         fields["setpoint"] = tuple(fields["setpoint"])
         fields["design"] = tuple(fields["design"])
         return cls(**fields)
-
-
-def sha256_file(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def load_index(folder: Path) -> dict[str, Any]:
@@ -249,14 +244,18 @@ def _wait_for_agent(controller: Controller, timeout: float, out: Callable[[str],
 
 
 def make_plan(setpoint: tuple[float, float], heading: float, radius: float, points: int, per_point: int, task: str,
-              policy: Path, design: Design, seed: int, config: ControllerConfig) -> TrialPlan:
+              policy: Path | str, design: Design, seed: int, config: ControllerConfig) -> TrialPlan:
+    """``policy`` is an ONNX file, or ``"goto"`` (the hand-written controller, no file)."""
     if not (math.isfinite(radius) and radius > 0):
         raise TrialError(f"--radius {radius} must be a positive number of metres")
     if points < 1 or per_point < 1:
         raise TrialError("--points and --per-point must be at least 1")
     if not all(math.isfinite(v) for v in (*setpoint, heading)):
         raise TrialError("the setpoint and heading must be finite numbers")
-    return TrialPlan(setpoint, heading, radius, points, per_point, task, str(policy), sha256_file(policy),
+    from tumblebot.sim.policy import sha256_of
+
+    digest = "" if str(policy) == "goto" else sha256_of(Path(policy))
+    return TrialPlan(setpoint, heading, radius, points, per_point, task, str(policy), digest,
                      design.as_tuple(), seed, asdict(config))
 
 

@@ -300,7 +300,8 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
 
     plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
     index = load_index(folder)
-    actor = make_actor("onnx", plan.policy, plan.task)
+    actor = make_actor("goto", "goto", plan.task) if plan.policy == "goto" else make_actor("onnx", plan.policy,
+                                                                                           plan.task)
     env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
                      **twin_servo(folder).env_kwargs())
     errors: list[float] = []

@@ -148,6 +148,24 @@ class GotoController:
         return action
 
 
+class GotoPolicy:
+    """:class:`GotoController` with a policy's interface, for the host: ``act(obs)`` counts
+    the steps itself; :meth:`reset` at the start of every trial."""
+
+    def __init__(self, episode_steps: int = 20) -> None:
+        self.controller = GotoController(GotoConfig(episode_steps=episode_steps))
+        self.step = 0
+
+    def reset(self) -> None:
+        self.controller.reset()
+        self.step = 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        action = self.controller.act(np.asarray(obs).reshape(-1), self.step)
+        self.step += 1
+        return np.array(action)
+
+
 def check_navigation_task(task: str) -> str:
     """The task's short name; refuses tasks ``goto`` cannot do with one clear error."""
     from tumblebot.sim.tasks import get_task

@@ -103,3 +103,24 @@ def test_that_every_help_page_renders_regression_percent_in_help(command: list[s
     result = run_cli(*command, "--help")
     assert result.returncode == 0, result.stderr
     assert "usage: tumblebot" in result.stdout
+
+
+@pytest.mark.slow
+def test_that_the_main_job_prints_the_optimum_the_readme_quotes(tmp_path: Path) -> None:
+    """``./dev.sh demo`` is seeded: its optimum must be the one README.md shows."""
+    root = Path(__file__).resolve().parents[2]
+    lines = (root / "dev.sh").read_text().splitlines()
+    at = next(i for i, ln in enumerate(lines) if "optimize --tasks" in ln)
+    words = (lines[at].split("optimize", 1)[1] + " " + lines[at + 1]).split()
+    args = [w for w in words if w not in ("\\", '"$@"')]
+    i = args.index("--storage")
+    args[i + 1] = f"sqlite:///{tmp_path / 'demo.db'}"
+    run = subprocess.run([sys.executable, "-m", "tumblebot.cli", "optimize", *args, "--quiet"], capture_output=True,
+                         text=True, timeout=1800, check=False, stdin=subprocess.DEVNULL)
+    assert run.returncode == 0, run.stderr
+    readme = (root / "README.md").read_text()
+    block = readme.split("## What the main job prints", 1)[1].split("```", 2)[1]
+    quoted = [ln.strip() for ln in block.splitlines() if ln.startswith(("best robot", "  x =", "  e(w)", "  nav-flat"))]
+    printed = [ln.strip() for ln in run.stdout.splitlines()
+               if ln.startswith(("best robot", "  x =", "  e(w)", "  nav-flat"))]
+    assert printed == quoted and len(quoted) == 4, (printed, quoted)

@@ -231,3 +231,13 @@ def test_that_a_host_follows_an_agent_restart_to_its_new_session(lab: Lab) -> No
     finally:
         stop.set()
         thread.join(timeout=2)
+
+
+def test_that_goto_drives_the_host_controller_and_starts_every_trial_afresh(lab: Lab) -> None:
+    from tumblebot.sim.goto import GotoPolicy
+
+    goto = GotoPolicy(5)
+    first = lab.controller(goto).run_trial()
+    assert first.status == "complete" and goto.step == 5
+    second = lab.controller(goto).run_trial()
+    assert second.status == "complete" and goto.step == 5  # reset at the start of the trial, not carried over
