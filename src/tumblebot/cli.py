@@ -158,6 +158,20 @@ def _train_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _curve(args: argparse.Namespace) -> int:
+    from tumblebot.training.curves import CurveError, plot_lineages
+
+    _check_writable(args.output, "-o")
+    try:
+        chains = plot_lineages(args.runs, args.output)
+    except (CurveError, OSError, ValueError, KeyError) as exc:
+        raise TumblebotError(f"curve: {exc}") from None
+    for run, chain in zip(args.runs, chains, strict=True):
+        print(f"{run}: {' -> '.join(chain)}")
+    print(f"wrote {args.output}")
+    return 0
+
+
 def _export(args: argparse.Namespace) -> int:
     from tumblebot.sim.tasks import get_task
     from tumblebot.training.export import export_onnx, load_run, wall_seconds_at, write_card
@@ -505,6 +519,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start a new run from the weights of another run's checkpoint (e.g. "
                         "runs/distance-flat/latest.zip for incline); the networks must match")
     p.set_defaults(func=_train)
+
+    p = sub.add_parser("curve", help="learning curves of training runs, following their warm starts",
+                       description="Draw each run's final-state R over environment steps, with the runs it was "
+                                   "warm-started from (its config's init_from, followed back) before it on the "
+                                   "same axis. Needs only the runs' episodes.csv and config.json (no torch).")
+    p.add_argument("runs", type=Path, nargs="+", metavar="RUN", help="run folders (e.g. training/checkpoints/nav-flat)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
+    p.set_defaults(func=_curve)
 
     p = sub.add_parser("export", help="export a trained run to ONNX with a model card (and evaluate it)",
                        description="Write one self-contained ONNX file (dynamic batch, no side data) and "

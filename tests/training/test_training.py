@@ -283,3 +283,30 @@ def test_that_ctrl_c_saves_a_checkpoint_and_exits_cleanly_regression_worker_hang
     assert proc.returncode == 130
     assert "checkpoint saved" in err
     assert (run / "latest.zip").is_file()
+
+
+def test_that_curve_follows_warm_starts_back_to_the_first_run(tmp_path: Path) -> None:
+    from tumblebot.cli import main
+
+    def run(name: str, init_from: str | None, steps: int) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        rows = ["steps,final_R,shaped_return,wall_seconds"]
+        rows += [f"{k * 20},{k / 100:.3f},1.0,{k}" for k in range(1, steps)]
+        (folder / "episodes.csv").write_text("\n".join(rows) + "\n")
+        config = {"init_from": init_from, "init_from_steps": 1000} if init_from else {}
+        (folder / "config.json").write_text(json.dumps(config))
+        return folder
+
+    run("base", None, 80)
+    run("tune", str(tmp_path / "base" / "latest.zip"), 60)
+    last = run("tune2", str(tmp_path / "tune" / "checkpoints" / "step_1000.zip"), 40)
+    out = tmp_path / "curve.png"
+    assert main(["curve", str(last), "-o", str(out)]) == 0
+    assert out.stat().st_size > 10_000
+    from tumblebot.training.curves import lineage
+
+    assert [f.name for f, _, _ in lineage(last)] == ["base", "tune", "tune2"]
+    lonely = run("lonely", str(tmp_path / "gone" / "latest.zip"), 30)
+    assert [m for _, _, m in lineage(lonely)] == [str(tmp_path / "gone" / "latest.zip")]  # said, not hidden
+    assert main(["curve", str(tmp_path / "nothing"), "-o", str(out)]) == 2
