@@ -1,7 +1,8 @@
 """Policy inference latency and evaluation throughput.
 
 Run: ``.venv/bin/python benchmarks/bench_policy.py --run RUN --policy POLICY.onnx``
-(defaults: ``runs/nav-flat`` and the bundled ``nav-flat`` policy).
+(defaults: the committed run the bundled ``nav-flat`` policy was exported from,
+``training/checkpoints/nav-flat-tumbling``, and that policy).
 
 1. Latency per observation, onnxruntime (:class:`OnnxPolicy`, what evaluation, the
    optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99.
@@ -78,7 +79,8 @@ def throughput(policy: OnnxPolicy, episodes: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", type=Path, default=Path("runs/nav-flat"), help="SB3 run folder or .zip")
+    parser.add_argument("--run", type=Path, default=Path("training/checkpoints/nav-flat-tumbling"),
+                        help="SB3 run folder or .zip (default: the committed run of the bundled nav-flat policy)")
     parser.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: bundled nav-flat)")
     parser.add_argument("--calls", type=int, default=5000)
     parser.add_argument("--episodes", type=int, default=20)
