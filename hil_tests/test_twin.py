@@ -185,4 +185,8 @@ def test_that_kill_9_of_the_host_at_random_moments_loses_no_written_step(tmp_pat
         assert finish.returncode == 0, rest
     index = load_index(out)
     assert sorted(t["trial"] for t in index["trials"]) == [0, 1, 2]
-    assert all(a["status"] == "host_crashed" for a in index["aborted"]), index["aborted"]
+    # Each kill leaves a trial the next run records as host_crashed. On a machine starved of
+    # CPU the agent can also miss telemetry for longer than the 1.5 s agent timeout; that
+    # trial is then aborted as agent_lost and redone, which is the product working (the
+    # agent-loss path has its own test above). Nothing else may abort a trial.
+    assert all(a["status"] in ("host_crashed", "agent_lost") for a in index["aborted"]), index["aborted"]

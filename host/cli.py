@@ -177,18 +177,17 @@ def _twin_check(args: argparse.Namespace) -> int:
 
 
 def _servo_of(args: argparse.Namespace) -> Any:
+    from tumblebot.sim.constants import STALL_TORQUE
     from tumblebot.sim.evaluate import Servo
 
-    return Servo(args.motor_model, args.stall_torque)
+    return Servo(args.motor_model, STALL_TORQUE if args.stall_torque is None else args.stall_torque)
 
 
 def _add_servo(p: argparse.ArgumentParser) -> None:
-    from tumblebot.sim.constants import STALL_TORQUE
-
     p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
                    help="the simulated world's servo model (default dc)")
-    p.add_argument("--stall-torque", type=float, default=STALL_TORQUE, metavar="N·m",
-                   help=f"the simulated servo's stall torque (default {STALL_TORQUE:.3f}, the thesis's constants)")
+    p.add_argument("--stall-torque", type=float, default=None, metavar="N·m",
+                   help="the simulated servo's stall torque (default 0.582, the thesis's constants)")
 
 
 def _print_consistency(r: dict[str, Any]) -> None:

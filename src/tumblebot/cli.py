@@ -382,9 +382,10 @@ def _report(args: argparse.Namespace) -> int:
 
 def _servo(args: argparse.Namespace) -> Any:
     """The ``--motor-model`` / ``--stall-torque`` pair as an evaluation :class:`Servo`."""
+    from tumblebot.sim.constants import STALL_TORQUE
     from tumblebot.sim.evaluate import Servo
 
-    return Servo(args.motor_model, args.stall_torque)
+    return Servo(args.motor_model, STALL_TORQUE if args.stall_torque is None else args.stall_torque)
 
 
 def _check_writable(path: Path, flag: str) -> None:
@@ -407,13 +408,12 @@ def _add_mismatch_argument(p: argparse.ArgumentParser) -> None:
 
 
 def _add_servo_arguments(p: argparse.ArgumentParser) -> None:
-    from tumblebot.sim.constants import STALL_TORQUE
-
+    # No simulator import here: building the parser stays fast (--help, bad arguments).
     p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
                    help="servo model: dc (torque falls linearly from the stall torque to zero at the free "
                         "speed) or velocity (velocity control capped at the stall torque); default dc")
-    p.add_argument("--stall-torque", type=_stall_torque, default=STALL_TORQUE, metavar="N·m",
-                   help=f"servo stall torque in N·m (default {STALL_TORQUE:.3f}, the thesis's motor constants; "
+    p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
+                   help="servo stall torque in N·m (default 0.582, the thesis's motor constants; "
                         "a predecessor-like strong servo is --motor-model velocity --stall-torque 10)")
 
 
@@ -635,8 +635,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("tumblebot: interrupted", file=sys.stderr)
+        return 130
     try:
         return int(args.func(args))
     except TumblebotError as exc:
