@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tumblebot.defaults import XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
 
@@ -256,7 +257,7 @@ def add_commands(sub: Any, positive_int: Any) -> None:
                                     "with pure simulation from the same starts. Needs the agent extra (pyserial) "
                                     "and Debian's avr-gcc and simavr (./dev.sh test installs them).")
     t.add_argument("--out", type=Path, required=True, help="trial-set folder")
-    t.add_argument("--design", default="0.292,0.129,0.098,0.136", help="robot design (default: the ξ = 3 robot)")
+    t.add_argument("--design", default=XI3_ROBOT_TEXT, help="robot design (default: the ξ = 3 robot)")
     t.add_argument("--policy", default="nav-flat", help="nav-flat or an ONNX file")
     t.add_argument("--setpoint", type=_xy, default=(0.4, -0.3), help="lab-frame goal X,Y (default 0.4,-0.3)")
     t.add_argument("--heading", type=float, default=0.5, help="task-frame heading, rad (default 0.5)")

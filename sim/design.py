@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.errors import DesignError
 
 PARAMETERS: tuple[str, ...] = ("x", "y", "z", "l")
@@ -99,6 +100,10 @@ class Design:
         hi = np.array([BOUNDS[n][1] for n in PARAMETERS])
         return cls.from_sequence(rng.uniform(lo, hi).tolist())
 
+    def as_dict(self) -> dict[str, float]:
+        """``{"x": …, "y": …, "z": …, "l": …}`` (metres), as JSON outputs record a design."""
+        return dict(zip(PARAMETERS, self.as_tuple(), strict=True))
+
     def as_tuple(self) -> tuple[float, float, float, float]:
         return (self.x, self.y, self.z, self.l)
 
@@ -126,6 +131,6 @@ class Design:
 THESIS_ROBOTS: dict[str, Design] = {
     "0": Design(0.293, 0.117, 0.158, 0.218),
     "1": Design(0.285, 0.117, 0.158, 0.218),
-    "3": Design(0.292, 0.129, 0.098, 0.136),
+    "3": Design(*XI3_ROBOT),
     "inf": Design(0.189, 0.104, 0.098, 0.152),
 }

@@ -42,7 +42,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tumblebot.sim import constants as C
-from tumblebot.sim.design import Design
+from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.pb import pybullet
 from tumblebot.sim.randomization import Randomization
@@ -57,7 +57,7 @@ ACTION_LABELS: tuple[str, str, str] = ("reverse", "stop", "forward")
 MotorModel = Literal["dc", "velocity"]
 
 #: The design used when none is given and designs are not randomised: the thesis's ξ = 3 robot.
-DEFAULT_DESIGN = Design(0.292, 0.129, 0.098, 0.136)
+DEFAULT_DESIGN = THESIS_ROBOTS["3"]
 _POSITION_LIMIT = 100.0
 #: The largest stall torque accepted, N·m (the predecessor's strong simulated servo is 10).
 MAX_STALL_TORQUE = 100.0

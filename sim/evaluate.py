@@ -138,7 +138,7 @@ class EvalResult:
 
         out: dict[str, Any] = {
             "task": self.task,
-            "design": dict(zip(("x", "y", "z", "l"), self.design.as_tuple(), strict=True)),
+            "design": self.design.as_dict(),
             "controller": self.controller,
             **self.servo.as_dict(),
             "seed": self.seed,

@@ -812,7 +812,7 @@ def study_summary(study: optuna.Study) -> dict[str, Any]:
         "interrupted": sum(bool(t.user_attrs.get("interrupted")) for t in trials),
         "episodes": episode_count(study),
         "best": None if best is None else {
-            "trial": best.trial, "design": dict(zip(PARAMETERS, best.design.as_tuple(), strict=True)),
+            "trial": best.trial, "design": best.design.as_dict(),
             "objective": best.value, "batch": best.batch, "e": best.e,
             "mean_R": {t: float(np.mean(r)) for t, r in best.R.items()},
         },

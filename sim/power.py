@@ -114,7 +114,7 @@ class PowerBreakdown:
             return v if math.isfinite(v) else None
 
         return {
-            "design": dict(zip(("x", "y", "z", "l"), self.design.as_tuple(), strict=True)),
+            "design": self.design.as_dict(),
             "mass": self.mass,
             "can_tumble": self.can_tumble,
             "flat_term": clean(self.flat_term),

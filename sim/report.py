@@ -276,7 +276,7 @@ def _table31(usable: list[StudyResult], reference: StudyResult, task: str) -> li
     for r in sorted(usable, key=lambda s: (s.objective.xi, s.name)):
         assert r.best is not None
         row: dict[str, Any] = {"study": r.name, "tasks": r.tasks, "xi": r.xi_label,
-                               "design": dict(zip(PARAMETERS, r.best.design.as_tuple(), strict=True)),
+                               "design": r.best.design.as_dict(),
                                "e": r.best.e, "trial": r.best_trial, "study_objective": r.study_value,
                                "study_episodes": r.episodes,
                                "R": {t: r.best.mean(t) for t in r.tasks}, "ci95": {t: r.best.ci(t) for t in r.tasks}}

@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from tumblebot.sim.design import Design
+from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
 from tumblebot.sim.gaits import GAITS
 
-XI3_ROBOT = Design(0.292, 0.129, 0.098, 0.136)
+XI3_ROBOT = THESIS_ROBOTS["3"]
 
 
 def _first_tumbling_draw(seed: int) -> Design:

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from tumblebot.defaults import XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
 
@@ -476,7 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("urdf", help="export a design's robot model as URDF",
                        description="Write the same model the simulator builds as a URDF file.")
-    p.add_argument("--design", default="0.292,0.129,0.098,0.136", metavar="X,Y,Z,L",
+    p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L",
                    help="design in metres (default: the thesis's ξ = 3 robot)")
     p.add_argument("-o", "--output", type=Path, default=None, help="output file (default: stdout)")
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
@@ -486,7 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run one 20-step episode of a task with a fixed gait and print "
                                    "the trajectory and the final-state reward R.")
     p.add_argument("--task", default="nav-flat", help="nav-flat, nav-terrain, distance-flat or incline")
-    p.add_argument("--design", default="0.292,0.129,0.098,0.136", metavar="X,Y,Z,L", help="design in metres")
+    p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--gait", default="forward",
                    help="forward, reverse, alternate, pulse, spin, stop, random, or goto (the closed-loop "
                         "navigation controller; nav-flat and nav-terrain only)")

@@ -53,3 +53,13 @@ def test_that_sampled_designs_lie_inside_the_bounds() -> None:
 def test_that_a_design_cannot_tumble_when_its_leg_is_shorter_than_the_pivot_radius() -> None:
     assert not Design(0.2, 0.2, 0.2, 0.07).can_tumble
     assert Design(0.292, 0.129, 0.098, 0.136).can_tumble
+
+
+def test_that_the_xi3_robot_is_written_once() -> None:
+    from tumblebot.defaults import XI3_ROBOT, XI3_ROBOT_TEXT
+    from tumblebot.sim.design import THESIS_ROBOTS
+    from tumblebot.sim.env import DEFAULT_DESIGN
+
+    assert THESIS_ROBOTS["3"].as_tuple() == XI3_ROBOT == DEFAULT_DESIGN.as_tuple()
+    assert Design.parse(XI3_ROBOT_TEXT).as_tuple() == XI3_ROBOT
+    assert THESIS_ROBOTS["3"].as_dict() == {"x": 0.292, "y": 0.129, "z": 0.098, "l": 0.136}

@@ -1,0 +1,13 @@
+"""Defaults shared by the simulator and the command lines, importing nothing.
+
+The command lines build their parsers from these without importing the simulator (which
+registers the Gymnasium environments and takes a noticeable fraction of a second).
+"""
+
+from __future__ import annotations
+
+#: The thesis's ξ = 3 robot (x, y, z, l) in metres: the robot built in the thesis and the
+#: default design wherever one is not given.
+XI3_ROBOT: tuple[float, float, float, float] = (0.292, 0.129, 0.098, 0.136)
+#: The same, as the command lines take a design.
+XI3_ROBOT_TEXT = ",".join(f"{v:g}" for v in XI3_ROBOT)
