@@ -178,10 +178,9 @@ def _twin_check(args: argparse.Namespace) -> int:
 
 
 def _servo_of(args: argparse.Namespace) -> Any:
-    from tumblebot.sim.constants import STALL_TORQUE
     from tumblebot.sim.evaluate import Servo
 
-    return Servo(args.motor_model, STALL_TORQUE if args.stall_torque is None else args.stall_torque)
+    return Servo.of(args.motor_model, args.stall_torque)
 
 
 def _add_servo(p: argparse.ArgumentParser) -> None:

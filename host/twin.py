@@ -93,7 +93,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     serial_link.symlink_to(uno.pty)
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
     env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
-                     **(servo or Servo()).env_kwargs())
+                     **(servo or Servo()).as_dict())
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
@@ -303,7 +303,7 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
     actor = make_actor("goto", "goto", plan.task) if plan.policy == "goto" else make_actor("onnx", plan.policy,
                                                                                            plan.task)
     env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
-                     **twin_servo(folder).env_kwargs())
+                     **twin_servo(folder).as_dict())
     errors: list[float] = []
     per_trial: list[list[float]] = []
     try:

@@ -7,6 +7,8 @@ the free (no-load) speed equals the thesis's leg speed ``γ̇``: ``V = ke·γ̇ 
 
 from __future__ import annotations
 
+from tumblebot.defaults import MAX_STALL_TORQUE as MAX_STALL_TORQUE  # re-exported: the servo limit
+
 GRAVITY = 9.81  #: m/s²
 LEG_SPEED = 3.67  #: γ̇, free leg speed at full command, rad/s
 KE = 1.64  #: back-EMF / torque constant at the output shaft, V·s/rad (= N·m/A)

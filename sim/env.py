@@ -59,8 +59,6 @@ MotorModel = Literal["dc", "velocity"]
 #: The design used when none is given and designs are not randomised: the thesis's ξ = 3 robot.
 DEFAULT_DESIGN = THESIS_ROBOTS["3"]
 _POSITION_LIMIT = 100.0
-#: The largest stall torque accepted, N·m (the predecessor's strong simulated servo is 10).
-MAX_STALL_TORQUE = 100.0
 _JOINTS = (0, 1)
 
 
@@ -136,8 +134,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.task: TaskSpec = get_task(task)
         if motor_model not in ("dc", "velocity"):
             raise SimError(f"motor_model={motor_model!r} must be 'dc' or 'velocity'")
-        if not (math.isfinite(stall_torque) and 0.0 < stall_torque <= MAX_STALL_TORQUE):
-            raise SimError(f"stall_torque={stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
+        if not (math.isfinite(stall_torque) and 0.0 < stall_torque <= C.MAX_STALL_TORQUE):
+            raise SimError(f"stall_torque={stall_torque!r} N·m must be in (0, {C.MAX_STALL_TORQUE:g}]")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise SimError(f"render_mode={render_mode!r} must be one of {self.metadata['render_modes']}")
         if episode_steps < 1 or step_seconds <= 0 or physics_hz < 60:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.constants import MAX_STALL_TORQUE, STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
@@ -79,23 +79,28 @@ class Servo:
     def __post_init__(self) -> None:
         if self.model not in ("dc", "velocity"):
             raise SimError(f"motor model {self.model!r} must be 'dc' or 'velocity'")
-        if not (math.isfinite(self.stall_torque) and 0.0 < self.stall_torque <= 100.0):
-            raise SimError(f"stall torque {self.stall_torque!r} N·m must be in (0, 100]")
+        if not (math.isfinite(self.stall_torque) and 0.0 < self.stall_torque <= MAX_STALL_TORQUE):
+            raise SimError(f"stall torque {self.stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
+
+    @classmethod
+    def of(cls, model: str | None, stall_torque: float | None) -> Servo:
+        """From a command line or a record, where either may be missing (the default)."""
+        return cls(model or "dc", STALL_TORQUE if stall_torque is None else float(stall_torque))
 
     @classmethod
     def from_card(cls, data: dict[str, Any]) -> Servo:
-        return cls(str(data.get("motor_model", "dc")), float(data.get("stall_torque", STALL_TORQUE)))
+        """A model card's, study's or twin record's ``{"motor_model", "stall_torque"}``."""
+        return cls.of(data.get("motor_model"), data.get("stall_torque"))
 
     def same_as(self, other: Servo) -> bool:
         return self.model == other.model and math.isclose(self.stall_torque, other.stall_torque, rel_tol=1e-6)
-
-    def env_kwargs(self) -> dict[str, Any]:
-        return {"motor_model": self.model, "stall_torque": self.stall_torque}
 
     def describe(self) -> str:
         return f"{self.model} servo, stall torque {self.stall_torque:.3g} N·m"
 
     def as_dict(self) -> dict[str, Any]:
+        """``{"motor_model", "stall_torque"}``: the environment's keyword arguments, and
+        what records store."""
         return {"motor_model": self.model, "stall_torque": self.stall_torque}
 
 

@@ -94,17 +94,13 @@ class StopFlag:
     def set(self) -> None:
         self._event.set()
 
-    def check(self) -> None:
-        if self._event.is_set():
-            raise StopRequested
-
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopFlag]:
         """Route SIGINT and SIGTERM to this flag while the block runs (main thread only)."""
         if threading.current_thread() is not threading.main_thread():
             yield self
             return
-        previous = {sig: signal.signal(sig, lambda _sig, _frame: self._event.set())
+        previous = {sig: signal.signal(sig, lambda _sig, _frame: self.set())
                     for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             yield self
@@ -285,11 +281,7 @@ class StudyConfig:
                    recipe.startup, seed, policies, controller, servo.model, servo.stall_torque)
 
     def servo(self) -> Servo:
-        return Servo(self.motor_model, float(self.stall_torque))
-
-    def controllers(self, tasks: list[str]) -> dict[str, Controller]:
-        """Task → what drives it in this study's episodes."""
-        return study_controllers(self.controller, tasks)
+        return Servo.of(self.motor_model, self.stall_torque)
 
     def objective(self) -> Objective:
         xi = math.inf if self.xi == "inf" else float(self.xi)

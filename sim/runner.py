@@ -46,7 +46,7 @@ class _Worker:
             from tumblebot.sim.randomization import Randomization
 
             self.envs[task] = TumblerEnv(task=task, randomization=Randomization(design=False),
-                                         **self.servo.env_kwargs())
+                                         **self.servo.as_dict())
             controller = self.controllers[task]
             self.actors[task] = make_actor(controller.kind, controller.name, task)
         out = run_episode(self.envs[task], self.actors[task], seed,
@@ -106,11 +106,6 @@ class EpisodeRunner:
                                                             initargs=(self.controllers, self.servo))
         else:  # in this process, whose Ctrl-C handling is left alone
             self._local = _Worker(self.controllers, self.servo)
-
-    @property
-    def policies(self) -> dict[str, str]:
-        """Task → ONNX policy path, for the tasks a policy drives."""
-        return {t: c.name for t, c in self.controllers.items() if c.kind == "onnx"}
 
     def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
             on_result: Callable[[], None] | None = None) -> dict[str, np.ndarray]:

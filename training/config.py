@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.constants import MAX_STALL_TORQUE, STALL_TORQUE
 from tumblebot.sim.randomization import Randomization
 
 
@@ -87,8 +87,8 @@ class TrainConfig:
             raise TrainingError(f"training config init_from_steps={self.init_from_steps!r} must be >= 0")
         if self.motor_model not in ("dc", "velocity"):
             raise TrainingError(f"motor_model {self.motor_model!r} must be 'dc' or 'velocity'")
-        if not isinstance(self.stall_torque, (int, float)) or not 0 < self.stall_torque <= 100:
-            raise TrainingError(f"stall_torque {self.stall_torque!r} N·m must be in (0, 100]")
+        if not isinstance(self.stall_torque, (int, float)) or not 0 < self.stall_torque <= MAX_STALL_TORQUE:
+            raise TrainingError(f"stall_torque {self.stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
         if not isinstance(self.tumbling_designs_only, bool):
             raise TrainingError(f"training config tumbling_designs_only={self.tumbling_designs_only!r} "
                                 "must be true or false")

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tumblebot.defaults import XI3_ROBOT_TEXT
+from tumblebot.defaults import MAX_STALL_TORQUE, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
 
@@ -368,12 +368,8 @@ def _report(args: argparse.Namespace) -> int:
         raise TumblebotError(f"-o {args.output} exists and is not a folder")
     _check_writable(args.output / "report.md", "-o")
 
-    servo = None
-    if args.motor_model is not None or args.stall_torque is not None:
-        from tumblebot.sim.constants import STALL_TORQUE
-        from tumblebot.sim.evaluate import Servo
-
-        servo = Servo(args.motor_model or "dc", STALL_TORQUE if args.stall_torque is None else args.stall_torque)
+    given = args.motor_model is not None or args.stall_torque is not None
+    servo = _servo(args) if given else None  # else the studies' own
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
                         controller=args.gait, servo=servo, allow_servo_mismatch=args.allow_servo_mismatch)
@@ -383,10 +379,9 @@ def _report(args: argparse.Namespace) -> int:
 
 def _servo(args: argparse.Namespace) -> Any:
     """The ``--motor-model`` / ``--stall-torque`` pair as an evaluation :class:`Servo`."""
-    from tumblebot.sim.constants import STALL_TORQUE
     from tumblebot.sim.evaluate import Servo
 
-    return Servo(args.motor_model, STALL_TORQUE if args.stall_torque is None else args.stall_torque)
+    return Servo.of(args.motor_model, args.stall_torque)
 
 
 def _check_writable(path: Path, flag: str) -> None:
@@ -423,8 +418,8 @@ def _stall_torque(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and 0.0 < value <= 100.0):
-        raise argparse.ArgumentTypeError(f"{text} N·m must be in (0, 100]")
+    if not (math.isfinite(value) and 0.0 < value <= MAX_STALL_TORQUE):
+        raise argparse.ArgumentTypeError(f"{text} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
     return value
 
 

@@ -11,3 +11,5 @@ from __future__ import annotations
 XI3_ROBOT: tuple[float, float, float, float] = (0.292, 0.129, 0.098, 0.136)
 #: The same, as the command lines take a design.
 XI3_ROBOT_TEXT = ",".join(f"{v:g}" for v in XI3_ROBOT)
+#: The largest servo stall torque accepted anywhere, N·m (a predecessor-like strong servo is 10).
+MAX_STALL_TORQUE = 100.0
