@@ -173,19 +173,18 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
         raise SimError(f"workers={workers} must be at least 1")
     if seed < 0:
         raise SimError(f"seed={seed} must be a non-negative integer")
-    controller.check(spec.name, servo)
     from tumblebot.sim.runner import EpisodeRunner
 
     start = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    with EpisodeRunner({spec.name: controller}, workers=workers, servo=servo) as runner:  # checks the controller
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
-    with EpisodeRunner({spec.name: controller}, workers=workers, servo=servo) as runner:
+            bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
         R, pos = runner.run_outcomes(design, [spec.name], 0, episodes, seed,
                                      on_result=None if bar is None else bar.update)[spec.name]
-    if bar is not None:
-        bar.close()
+        if bar is not None:
+            bar.close()
     return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
                       time.perf_counter() - start, servo)

@@ -494,15 +494,17 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
     return max(cands, key=lambda c: c.value) if cands else None
 
 
-def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False
-                      ) -> dict[str, Controller]:
+def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
+                      servo: Servo | None = None) -> dict[str, Controller]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy) or a gait name
-    (``goto`` included), as a task → :class:`Controller` map, each checked for its task."""
+    (``goto`` included), as a task → :class:`Controller` map, each checked for its task
+    and ``servo`` (here, before a study is opened or written)."""
     if controller == "policy":
-        return {t: Controller("onnx", str(p), allow_servo_mismatch) for t, p in bundled_policies(tasks).items()}
-    out = {t: Controller.of_gait(controller) for t in tasks}
+        out = {t: Controller("onnx", str(p), allow_servo_mismatch) for t, p in bundled_policies(tasks).items()}
+    else:
+        out = {t: Controller.of_gait(controller) for t in tasks}
     for t, c in out.items():
-        c.check(t)
+        c.check(t, servo)
     return out
 
 

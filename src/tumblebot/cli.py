@@ -69,16 +69,10 @@ def _urdf(args: argparse.Namespace) -> int:
 def _sim(args: argparse.Namespace) -> int:
     from tumblebot.sim.design import Design
     from tumblebot.sim.episode import run_gait_episode, write_animation
-    from tumblebot.sim.gaits import get_gait
-    from tumblebot.sim.goto import check_navigation_task
     from tumblebot.sim.randomization import Randomization
     from tumblebot.sim.tasks import get_task
 
-    task = get_task(args.task)
-    if args.gait == "goto":
-        check_navigation_task(task.name)
-    else:
-        get_gait(args.gait)
+    task = get_task(args.task)  # run_gait_episode checks the gait (or goto) for the task
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
     servo = _servo(args)
     if args.video is not None:
@@ -235,7 +229,6 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.policy is None and not path.is_file():
             raise PolicyError(f"no bundled policy for {task.name} ({path.name}); pass --policy FILE")
         controller = Controller("onnx", str(path), allow_servo_mismatch=args.allow_servo_mismatch)
-    controller.check(task.name, servo)
     if args.csv is not None:
         _check_writable(args.csv, "--csv")
     result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json,
@@ -303,9 +296,7 @@ def _optimize(args: argparse.Namespace) -> int:
         _check_writable(args.json, "--json")
     servo = _servo(args)
     controllers = study_controllers("policy" if args.gait is None else args.gait, objective.tasks,
-                                    args.allow_servo_mismatch)
-    for task, c in controllers.items():
-        c.check(task, servo)
+                                    args.allow_servo_mismatch, servo)
     policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
                             controller="policy" if args.gait is None else args.gait, servo=servo)
