@@ -289,8 +289,9 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
 
     For each finished trial: the same start point and yaw, expressed in the task frame,
     with ``episodes_per_trial`` episode seeds (the trial's own first), through
-    ``TumblerEnv.step`` and the ONNX policy: what ``tumblebot evaluate`` does, from these
-    starts.
+    ``TumblerEnv.step`` and the set's controller (its ONNX policy, or goto) under the
+    twin's servo: what ``tumblebot evaluate`` does, from these starts. ``per_trial`` holds
+    the final errors grouped by trial, in the index's order.
     """
     from tumblebot.host.trials import TrialPlan, load_index
     from tumblebot.sim.env import TumblerEnv
@@ -304,7 +305,6 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
                                                                                            plan.task)
     env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
                      **twin_servo(folder).as_dict())
-    errors: list[float] = []
     per_trial: list[list[float]] = []
     try:
         for entry in index["trials"]:
@@ -318,11 +318,10 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
                 outcome = run_episode(env, actor, s, options={"start_xy": (float(pos[0]), float(pos[1])),
                                                               "start_yaw": yaw_task})
                 fx, fy = outcome.final_position[:2]
-                errors.append(math.hypot(fx, fy))
-                per_trial[-1].append(errors[-1])
+                per_trial[-1].append(math.hypot(fx, fy))
     finally:
         env.close()
-    return {"errors": errors, "per_trial": per_trial, "episodes_per_trial": episodes_per_trial}
+    return {"per_trial": per_trial, "episodes_per_trial": episodes_per_trial}
 
 
 def upper_tail_p(twin_error: float, sim_errors: list[float] | np.ndarray) -> float:
