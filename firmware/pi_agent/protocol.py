@@ -64,16 +64,38 @@ class ErrorCode(enum.IntEnum):
     BAD_PAYLOAD = 9
 
 
-#: Payload sizes by type (exact).
-PAYLOAD_SIZES: dict[MsgType, int] = {
-    MsgType.SET_SPEEDS: 2, MsgType.PING: 4, MsgType.SET_TRIM: 4, MsgType.GET_STATUS: 0,
-    MsgType.READY: 4, MsgType.PONG: 4, MsgType.STATUS: 17, MsgType.ERROR: 3,
-}
-
-STATUS_STRUCT = struct.Struct("<IbbBHHHHH")
+SET_SPEEDS_STRUCT = struct.Struct("<bb")
+TOKEN_STRUCT = struct.Struct("<I")
 TRIM_STRUCT = struct.Struct("<BHb")
+READY_STRUCT = struct.Struct("<BBBB")
+STATUS_STRUCT = struct.Struct("<IbbBHHHHH")
 ERROR_STRUCT = struct.Struct("<BH")
 NEUTRAL_MIN_US, NEUTRAL_MAX_US = 1300, 1700
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    """One row of the serial message table."""
+
+    type: MsgType
+    direction: str  #: "to_firmware" (agent → Arduino) or "to_agent" (Arduino → agent)
+    size: int  #: exact payload size, bytes
+
+
+#: The serial message table (docs/protocol.md, "Messages"); the C++ twin is
+#: ``tumble::payloadSize`` / ``tumble::isForFirmware`` in tumble_proto.h.
+MESSAGES: dict[MsgType, MessageSpec] = {m.type: m for m in (
+    MessageSpec(MsgType.SET_SPEEDS, "to_firmware", SET_SPEEDS_STRUCT.size),
+    MessageSpec(MsgType.PING, "to_firmware", TOKEN_STRUCT.size),
+    MessageSpec(MsgType.SET_TRIM, "to_firmware", TRIM_STRUCT.size),
+    MessageSpec(MsgType.GET_STATUS, "to_firmware", 0),
+    MessageSpec(MsgType.READY, "to_agent", READY_STRUCT.size),
+    MessageSpec(MsgType.PONG, "to_agent", TOKEN_STRUCT.size),
+    MessageSpec(MsgType.STATUS, "to_agent", STATUS_STRUCT.size),
+    MessageSpec(MsgType.ERROR, "to_agent", ERROR_STRUCT.size),
+)}
+#: Payload sizes by type (exact), from the table.
+PAYLOAD_SIZES: dict[MsgType, int] = {t: m.size for t, m in MESSAGES.items()}
 
 
 class ProtocolError(ValueError):
@@ -186,7 +208,7 @@ def decode_body(encoded: bytes) -> Frame:
     if len(payload) != PAYLOAD_SIZES[kind]:
         raise FrameError(ErrorCode.BAD_PAYLOAD, f"{kind.name} payload of {len(payload)} bytes, "
                                                    f"expected {PAYLOAD_SIZES[kind]}")
-    if kind is MsgType.SET_SPEEDS and any(v not in (-1, 0, 1) for v in struct.unpack("<bb", payload)):
+    if kind is MsgType.SET_SPEEDS and any(v not in (-1, 0, 1) for v in SET_SPEEDS_STRUCT.unpack(payload)):
         raise FrameError(ErrorCode.BAD_PAYLOAD, "speeds must be -1, 0 or +1")
     if kind is MsgType.SET_TRIM:
         servo, neutral, direction = TRIM_STRUCT.unpack(payload)
@@ -234,33 +256,6 @@ def newer(seq: int, last: int) -> bool:
 
 
 # Serial payloads: every one is packed and unpacked here, nowhere else -------------------
-SET_SPEEDS_STRUCT = struct.Struct("<bb")
-TOKEN_STRUCT = struct.Struct("<I")
-READY_STRUCT = struct.Struct("<BBBB")
-
-
-@dataclass(frozen=True)
-class MessageSpec:
-    """One row of the serial message table."""
-
-    type: MsgType
-    direction: str  #: "to_firmware" (agent → Arduino) or "to_agent" (Arduino → agent)
-    size: int  #: exact payload size, bytes
-
-
-#: The serial message table (docs/protocol.md, "Messages"); the C++ twin is
-#: ``tumble::payloadSize`` / ``tumble::isForFirmware`` in tumble_proto.h.
-MESSAGES: dict[MsgType, MessageSpec] = {m.type: m for m in (
-    MessageSpec(MsgType.SET_SPEEDS, "to_firmware", SET_SPEEDS_STRUCT.size),
-    MessageSpec(MsgType.PING, "to_firmware", TOKEN_STRUCT.size),
-    MessageSpec(MsgType.SET_TRIM, "to_firmware", TRIM_STRUCT.size),
-    MessageSpec(MsgType.GET_STATUS, "to_firmware", 0),
-    MessageSpec(MsgType.READY, "to_agent", READY_STRUCT.size),
-    MessageSpec(MsgType.PONG, "to_agent", TOKEN_STRUCT.size),
-    MessageSpec(MsgType.STATUS, "to_agent", STATUS_STRUCT.size),
-    MessageSpec(MsgType.ERROR, "to_agent", ERROR_STRUCT.size),
-)}
-assert all(PAYLOAD_SIZES[t] == m.size for t, m in MESSAGES.items())
 
 
 def set_speeds_payload(right: int, left: int) -> bytes:
