@@ -131,20 +131,21 @@ class AgentClient:
         if self.keys is not None:
             self._send(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(self._nonce))
 
-    def _on_session(self, data: bytes) -> None:
-        session = P.peek_session(data)
-        if session is None or self._hello_nonce is None:
+    def _on_session(self, data: bytes, session: bytes) -> None:
+        """A SESSION datagram claiming ``session`` (its key derives from that id)."""
+        if self._hello_nonce is None:
             return
+        keys = P.LinkKeys.derive(self.key, session)
         try:
-            d = P.decode_datagram(data, P.LinkKeys.derive(self.key, session), frozenset({P.UdpType.SESSION}))
+            d = P.decode_datagram(data, keys, frozenset({P.UdpType.SESSION}))
         except P.DatagramError:
             return
-        nonce, confirmed = P.unpack_session(d.payload)
+        nonce, _ = P.unpack_session(d.payload)  # the session id in it is the one peeked and verified
         if nonce != self._hello_nonce:
             return  # an answer to an older HELLO (or a replayed one)
         self._hello_nonce = None
-        if confirmed != self.session:
-            self.keys = P.LinkKeys.derive(self.key, confirmed)
+        if session != self.session:
+            self.keys = keys
             self.sessions += 1
             self._last_telemetry_counter = None
 
@@ -158,8 +159,9 @@ class AgentClient:
                 break
             if source[0] != self.address[0]:
                 continue
-            if P.peek_session(data) is not None:
-                self._on_session(data)
+            session = P.peek_session(data)
+            if session is not None:
+                self._on_session(data, session)
                 continue
             if self.keys is None:
                 continue
