@@ -189,11 +189,7 @@ class SerialLink:
         agent). A GET_STATUS with a guessed epoch is answered with STATUS or an ERROR,
         either of which carries the live epoch in its header."""
         self.last_probe = now
-        self.seq = (self.seq + 1) & 0xFFFF
-        try:
-            self.port.write(b"\x00" + P.encode_frame(P.Frame(0, self.seq, P.MsgType.GET_STATUS)))
-        except OSError as exc:
-            self._lost(now, f"write failed: {exc}")
+        self._write(0, P.MsgType.GET_STATUS, b"", now)
 
     def _lost(self, now: float, why: str) -> None:
         log.warning("serial link lost: %s", why)
@@ -248,11 +244,15 @@ class SerialLink:
     def send(self, mtype: P.MsgType, payload: bytes, now: float) -> bool:
         if not self.ready:
             return False
-        self.seq = (self.seq + 1) & 0xFFFF
         assert self.epoch is not None
+        return self._write(self.epoch, mtype, payload, now)
+
+    def _write(self, epoch: int, mtype: P.MsgType, payload: bytes, now: float) -> bool:
+        """One frame with the next seq; a failed write loses the link."""
+        self.seq = (self.seq + 1) & 0xFFFF
         try:
             # A leading delimiter ends any garbage the Arduino may hold, so this frame decodes.
-            self.port.write(b"\x00" + P.encode_frame(P.Frame(self.epoch, self.seq, mtype, payload)))
+            self.port.write(b"\x00" + P.encode_frame(P.Frame(epoch, self.seq, mtype, payload)))
         except OSError as exc:  # includes pyserial's write timeout
             self._lost(now, f"write failed: {exc}")
             return False
