@@ -438,16 +438,18 @@ def test_that_a_stop_flood_does_not_flood_the_serial_link(chain) -> None:  # typ
     before = host.telemetry()
     time.sleep(1.1)  # a STATUS with the counter at the start
     ok0 = host.telemetry()["firmware_status"]["frames_ok"]
-    start = time.monotonic()
-    while time.monotonic() - start < 1.0:  # 1000 STOP/s
+    start, sent = time.monotonic(), 0
+    while time.monotonic() - start < 1.0:  # up to 1000 STOP/s (fewer on a busy machine)
         host.send(host.datagram(P.UdpType.STOP))
+        sent += 1
         time.sleep(0.001)
     time.sleep(1.1)
     after = host.telemetry()
     frames = after["firmware_status"]["frames_ok"] - ok0
     # keepalive 10/s + ping 10/s + status 1/s over about 2.2 s, not 321 frames a second
     assert frames < 80, frames
-    assert after["rate_limited"].get("STOP", 0) - before["rate_limited"].get("STOP", 0) > 300
+    limited = after["rate_limited"].get("STOP", 0) - before["rate_limited"].get("STOP", 0)
+    assert sent > 300 and limited >= 0.9 * sent, (sent, limited)  # each one reached the agent, none the serial link
 
 
 @pytest.mark.slow
