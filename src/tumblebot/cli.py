@@ -636,6 +636,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("tumblebot: interrupted", file=sys.stderr)
         return 130
+    except ImportError as exc:  # Ctrl-C inside a C extension's import surfaces as ImportError
+        if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            print("tumblebot: interrupted", file=sys.stderr)
+            return 130
+        raise
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0
