@@ -69,6 +69,7 @@ def _trial_run(args: argparse.Namespace) -> int:
     else:
         policy_path = _policy_path(args.policy or "nav-flat")
         policy = OnnxPolicy(policy_path, task=task)
+        policy.bind_design(design.as_tuple())  # a design-conditioned policy is told the body it drives
     config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
                               agent_timeout=args.agent_timeout, max_speed=args.max_speed)
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,

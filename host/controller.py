@@ -79,7 +79,10 @@ class Controller:
     Args:
         source: where poses come from (:func:`tumblebot.host.mocap.open_source`).
         agent: the link to the Pi agent.
-        policy: anything with ``act(obs) -> (a_right, a_left)`` in {0, 1, 2}.
+        policy: anything with ``act(obs) -> (a_right, a_left)`` in {0, 1, 2}; its
+            ``reset()``, if it has one, is called at the start of every trial (an
+            :class:`~tumblebot.sim.policy.OnnxPolicy` conditioned on the design is bound
+            to it first, :meth:`~tumblebot.sim.policy.OnnxPolicy.bind_design`).
         setpoint: lab-frame goal ``(x, y)``; heading: lab-frame direction (rad) that
             becomes the task frame's +x.
     """
@@ -145,7 +148,7 @@ class Controller:
         self.filter = PoseFilter(cfg.max_speed, cfg.lost_after)
         self.drain()
         reset = getattr(self.policy, "reset", None)
-        if callable(reset):  # a controller with memory (goto) starts every trial afresh
+        if callable(reset):  # a controller with memory (goto, a context policy) starts every trial afresh
             reset()
 
         def event(name: str, detail: str = "") -> None:

@@ -122,6 +122,13 @@ class GotoController:
             return drive
         return max(self.spin_rate, key=lambda a: self.spin_rate[a] * math.copysign(1.0, error))
 
+    def taken(self, action: Action) -> None:
+        """Record that ``action``, not this controller's choice, was taken at the step it
+        was last asked about (another controller drove; imitation learning labels the
+        states a student visits this way). The estimates then learn from what happened."""
+        if self._last is not None:
+            self._last = (self._last[0], self._last[1], (int(action[0]), int(action[1])))
+
     def act(self, obs: np.ndarray, step: int) -> Action:
         """The action for step ``step`` given the observation before it."""
         cfg = self.config

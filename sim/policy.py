@@ -4,12 +4,26 @@ Every inference outside training (evaluation, optimisation, the host) goes throu
 :class:`OnnxPolicy`; torch is not needed. The model card (``POLICY.json`` beside
 ``POLICY.onnx``) says which task and observation layout the network expects, and holds
 the SHA-256 of the ONNX file; loading checks all three.
+
+Two observation layouts exist (:data:`LAYOUTS`):
+
+* ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
+* ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
+  the design it built (``x, y, z, l``, m), the steps left in the episode as a fraction
+  of the episode (1 before the first step), and the previous step's 9 thesis numbers
+  (the current ones again before the first step). A policy with this input is told the
+  body it drives, how much time is left, and what its last action did.
+
+Callers always hand :meth:`OnnxPolicy.act` the thesis observation; the policy builds the
+rest itself (:class:`ObservationContext`), given the design at :meth:`OnnxPolicy.reset`,
+which every episode or trial starts with.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +34,10 @@ from tumblebot.sim.errors import SimError
 #: The observation layout every policy must declare (kept in step with env.OBS_FIELDS,
 #: which a test checks; duplicated here so this module needs no PyBullet).
 OBS_LAYOUT: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
+CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
+                                   *(f"prev_{name}" for name in OBS_LAYOUT))
+LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS}
+EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 
 
@@ -40,6 +58,67 @@ def bundled_policy(task: str) -> Path:
     import tumblebot.policies
 
     return Path(tumblebot.policies.__file__).parent / f"{task}.onnx"
+
+
+def layout_named(fields: Sequence[str]) -> str:
+    """The name of the layout whose fields are ``fields``; :class:`PolicyError` if none."""
+    for name, layout in LAYOUTS.items():
+        if tuple(fields) == layout:
+            return name
+    raise PolicyError(f"observation layout {list(fields)!r} is none of the known layouts ("
+                      + "; ".join(f"{n}: {list(f)}" for n, f in LAYOUTS.items()) + ")")
+
+
+class ObservationContext:
+    """Builds a policy's input in ``layout`` from the thesis observation, step by step.
+
+    ``reset(design)`` starts an episode; each call then takes the thesis observation
+    before the next step and returns the policy input (for ``thesis``, the observation
+    itself). The step count and the previous observation are its own memory, so it must
+    see every step of the episode, in order.
+    """
+
+    def __init__(self, layout: str = "thesis", episode_steps: int = EPISODE_STEPS) -> None:
+        if layout not in LAYOUTS:
+            raise PolicyError(f"unknown observation layout {layout!r} (known: {', '.join(LAYOUTS)})")
+        if episode_steps < 1:
+            raise PolicyError(f"episode_steps={episode_steps} must be at least 1")
+        self.layout = layout
+        self.size = len(LAYOUTS[layout])
+        self.episode_steps = episode_steps
+        self._design: np.ndarray | None = None
+        self._previous: np.ndarray | None = None
+        self.step = 0
+
+    @property
+    def needs_design(self) -> bool:
+        return self.layout == "context"
+
+    def reset(self, design: Sequence[float] | None = None) -> None:
+        if self.needs_design:
+            if design is None:
+                raise PolicyError("this policy is conditioned on the design: give the robot's "
+                                  "(x, y, z, l) when the episode or trial starts")
+            values = np.asarray([float(v) for v in design], dtype=np.float32)
+            if values.shape != (4,) or not np.all(np.isfinite(values)) or np.any(values <= 0):
+                raise PolicyError(f"design {list(design)!r} must be four positive lengths (x, y, z, l) in m")
+            self._design = values
+        self._previous = None
+        self.step = 0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32).reshape(-1)
+        if obs.shape != (len(OBS_LAYOUT),):
+            raise PolicyError(f"observation has {obs.size} numbers, not the thesis's {len(OBS_LAYOUT)}")
+        if self.layout == "thesis":
+            return obs
+        if self._design is None:
+            raise PolicyError("call reset(design) at the start of every episode or trial")
+        previous = obs if self._previous is None else self._previous
+        steps_left = max(self.episode_steps - self.step, 0) / self.episode_steps
+        self._previous = obs
+        self.step += 1
+        return np.concatenate([obs, self._design, np.float32([steps_left]), previous]).astype(np.float32)
 
 
 class OnnxPolicy:
@@ -65,9 +144,13 @@ class OnnxPolicy:
             raise PolicyError(f"model card {cpath} must hold a JSON object")
         if task is not None and card.get("task") != task:
             raise PolicyError(f"policy {path} was trained for task {card.get('task')!r}, not {task!r}")
-        if tuple(card.get("observation", {}).get("fields", ())) != OBS_LAYOUT:
-            raise PolicyError(f"policy {path} expects observation layout {card.get('observation')!r}, "
-                              f"not {list(OBS_LAYOUT)}")
+        observation = card.get("observation")
+        if not isinstance(observation, dict):
+            raise PolicyError(f"model card {cpath} has no observation layout")
+        try:
+            self.layout = layout_named(observation.get("fields", ()))
+        except PolicyError as exc:
+            raise PolicyError(f"policy {path}: {exc}") from None
         digest = sha256_of(path)
         if card.get("onnx_sha256") != digest:
             raise PolicyError(f"policy {path} does not match its model card (SHA-256 {digest[:12]}…, "
@@ -84,12 +167,37 @@ class OnnxPolicy:
         self.path = path
         self.card: dict[str, Any] = card
         self.task: str = str(card.get("task"))
-        self._input = self.session.get_inputs()[0].name
+        inputs = self.session.get_inputs()
+        if len(inputs) != 1 or inputs[0].shape[-1] != len(LAYOUTS[self.layout]):
+            raise PolicyError(f"policy {path}'s graph does not take the {self.layout} layout's "
+                              f"{len(LAYOUTS[self.layout])} numbers its card declares")
+        self._input = inputs[0].name
+        self.context = ObservationContext(self.layout)
+        self._design: tuple[float, ...] | None = None
 
-    def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        """``(B, 9)`` observations → ``(B, 2)`` int64 actions."""
-        out = self.session.run(None, {self._input: np.asarray(obs, dtype=np.float32).reshape(-1, len(OBS_LAYOUT))})
+    @property
+    def needs_design(self) -> bool:
+        """Whether :meth:`reset` must be given the design (a ``context`` policy)."""
+        return self.context.needs_design
+
+    def reset(self, design: Sequence[float] | None = None) -> None:
+        """Start an episode or trial on the robot ``design`` ``(x, y, z, l)``, m (default:
+        the one given to :meth:`bind_design`); a ``thesis`` policy ignores it."""
+        self.context.reset(self._design if design is None else design)
+
+    def bind_design(self, design: Sequence[float]) -> None:
+        """The robot every later :meth:`reset` without a design is for (the host's
+        ``trial run --design``): checked now, so a bad design fails before any trial."""
+        self.context.reset(design)
+        self._design = tuple(float(v) for v in design)
+
+    def act_batch(self, inputs: np.ndarray) -> np.ndarray:
+        """``(B, N)`` inputs in this policy's layout (N = 9 for ``thesis``) → ``(B, 2)``
+        int64 actions. Stateless: for tests and benchmarks; episodes use :meth:`act`."""
+        size = len(LAYOUTS[self.layout])
+        out = self.session.run(None, {self._input: np.asarray(inputs, dtype=np.float32).reshape(-1, size)})
         return np.asarray(out[0], dtype=np.int64)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.act_batch(obs)[0]
+        """The action for the thesis observation ``obs`` before the next step."""
+        return self.act_batch(self.context(obs))[0]

@@ -4,9 +4,10 @@
 evaluation: :mod:`tumblebot.sim.evaluate` (one design, many episodes) and
 :mod:`tumblebot.sim.runner` (many designs, a pool that outlives them) both call it. A
 controller is made from its description (:class:`~tumblebot.sim.evaluate.Controller`) by
-:func:`make_actor`; every kind answers ``reset()`` at the start of an episode and
-``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the step,
-an ONNX policy only the observation, ``goto`` both and its own memory).
+:func:`make_actor`; every kind answers ``reset(seed, design)`` at the start of an episode
+and ``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the
+step and the seed, a ``thesis`` ONNX policy only the observation, a ``context`` one also
+the design and its own memory, ``goto`` the observation, the step and its memory).
 """
 
 from __future__ import annotations
@@ -21,8 +22,11 @@ import numpy as np
 from tumblebot.sim.errors import SimError
 
 
+Design4 = tuple[float, float, float, float]
+
+
 class Actor(Protocol):
-    def reset(self, seed: int) -> None: ...
+    def reset(self, seed: int, design: Design4) -> None: ...
 
     def act(self, obs: np.ndarray, step: int) -> np.ndarray: ...
 
@@ -33,8 +37,8 @@ class _PolicyActor:
 
         self.policy = OnnxPolicy(path, task=task)
 
-    def reset(self, seed: int) -> None:
-        pass
+    def reset(self, seed: int, design: Design4) -> None:
+        self.policy.reset(design)
 
     def act(self, obs: np.ndarray, step: int) -> np.ndarray:
         return self.policy.act(obs)
@@ -47,7 +51,7 @@ class _GaitActor:
         self.gait = get_gait(name)
         self.rng = np.random.default_rng(0)
 
-    def reset(self, seed: int) -> None:
+    def reset(self, seed: int, design: Design4) -> None:
         self.rng = np.random.default_rng(seed)  # the random gait's draws follow the episode
 
     def act(self, obs: np.ndarray, step: int) -> np.ndarray:
@@ -61,7 +65,7 @@ class _GotoActor:
         check_navigation_task(task)
         self.goto = GotoController()
 
-    def reset(self, seed: int) -> None:
+    def reset(self, seed: int, design: Design4) -> None:
         self.goto.reset()
 
     def act(self, obs: np.ndarray, step: int) -> np.ndarray:
@@ -93,7 +97,7 @@ def run_episode(env: Any, actor: Actor, seed: int, options: dict[str, Any] | Non
     of the episode, and return the final-state reward and position. ``on_step(step,
     action, obs, info)`` sees every step, for callers that record the trajectory."""
     obs, _ = env.reset(seed=seed, options=options)
-    actor.reset(seed)
+    actor.reset(seed, env.design.as_tuple())
     info: dict[str, Any] = {}
     for step in range(env.episode_steps):
         action = actor.act(obs, step)

@@ -1,5 +1,7 @@
 """The evaluation a model card records: the policy against scripted gaits and a random
-policy, on the thesis's ξ = 3 robot and on a design drawn from the bounds."""
+policy, on the thesis's ξ = 3 robot and on a design drawn from the bounds; for the
+navigation tasks also against the ``goto`` controller, on those two designs and on
+:data:`NAV_GRID`, paired on the same episodes."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ from scipy import stats
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
 from tumblebot.sim.gaits import GAITS
+from tumblebot.sim.goto import NAVIGATION_TASKS
 
 XI3_ROBOT = THESIS_ROBOTS["3"]
 
@@ -33,6 +36,67 @@ RANDOM_DESIGN = _first_tumbling_draw(2021)
 FIXED_GAITS = [g for g in GAITS if g != "random"]
 
 
+def _grid() -> dict[str, Design]:
+    """Twelve designs that can tumble, spread over the bounds: three body sizes (small,
+    medium, large side profile), each with a short, medium and long leg, at three widths;
+    then the thesis's ξ = 0, 3 and ∞ robots."""
+    bodies = {"small": (0.110, 0.090), "medium": (0.160, 0.130), "large": (0.220, 0.180)}
+    legs = {"small": (0.090, 0.150, 0.240), "medium": (0.120, 0.180, 0.240), "large": (0.160, 0.200, 0.250)}
+    widths = (0.190, 0.245, 0.300)
+    grid: dict[str, Design] = {}
+    for b, (y, z) in bodies.items():
+        for k, (l, x) in enumerate(zip(legs[b], widths if b != "medium" else widths[::-1], strict=True)):
+            grid[f"{b} body, {('short', 'medium', 'long')[k]} legs"] = Design(x, y, z, l)
+    for xi in ("0", "3", "inf"):
+        grid[f"thesis ξ = {'∞' if xi == 'inf' else xi} robot"] = THESIS_ROBOTS[xi]
+    assert all(d.can_tumble for d in grid.values())
+    return grid
+
+
+#: The design grid of the navigation cards (the bar: no worse than goto − 0.02 wherever
+#: goto reaches 0.5, and ahead of it on average).
+NAV_GRID: dict[str, Design] = _grid()
+
+
+def _paired_p(a: EvalResult, b: EvalResult) -> float:
+    """Two-sided p-value of the paired difference of ``a`` and ``b`` (same episodes)."""
+    diff = a.R - b.R
+    if np.allclose(diff, diff[0]):
+        return 1.0
+    return float(stats.ttest_rel(a.R, b.R).pvalue)
+
+
+def goto_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
+                    workers: int) -> dict[str, Any]:
+    """The policy against ``goto`` on each design, on the same episodes; a table's rows."""
+    rows = []
+    for label, design in designs.items():
+        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
+        goto = evaluate(task, design, Controller("goto", "goto"), episodes, seed, workers, progress=True)
+        rows.append({"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
+                     "goto_mean_R": goto.mean_R, "difference": pol.mean_R - goto.mean_R,
+                     "p_paired": _paired_p(pol, goto)})
+    differences = [r["difference"] for r in rows]
+    where_goto_works = [r for r in rows if r["goto_mean_R"] >= 0.5]
+    return {"episodes_per_design": episodes, "seed": seed, "rows": rows,
+            "mean_difference": float(np.mean(differences)),
+            "worst_difference_where_goto_reaches_0.5": (min(r["difference"] for r in where_goto_works)
+                                                        if where_goto_works else None)}
+
+
+def grid_table(comparison: dict[str, Any]) -> str:
+    """:func:`goto_comparison` as a Markdown table."""
+    lines = ["| design (x, y, z, l) m | | policy | goto | difference | p (paired) |",
+             "|---|---|---|---|---|---|"]
+    for r in comparison["rows"]:
+        d = r["design"]
+        lines.append(f"| {r['label']} | ({d['x']:.3f}, {d['y']:.3f}, {d['z']:.3f}, {d['l']:.3f}) | "
+                     f"{r['policy_mean_R']:.3f} | {r['goto_mean_R']:.3f} | {r['difference']:+.3f} | "
+                     f"{r['p_paired']:.2g} |")
+    lines.append(f"| mean | | | | {comparison['mean_difference']:+.3f} | |")
+    return "\n".join(lines) + "\n"
+
+
 def _welch(a: EvalResult, b: EvalResult) -> float:
     """One-sided p-value that ``a`` has a higher mean R than ``b`` (Welch's t-test)."""
     return float(stats.ttest_ind(a.R, b.R, equal_var=False, alternative="greater").pvalue)
@@ -51,4 +115,6 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
         entry["p_vs_best_fixed_gait"] = _welch(pol, gaits[best_fixed])
         entry["p_vs_random_policy"] = _welch(pol, gaits["random"])
         out["designs"][label] = entry
+    if task in NAVIGATION_TASKS:
+        out["against_goto"] = goto_comparison(policy, task, NAV_GRID, episodes, seed, workers)
     return out

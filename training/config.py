@@ -10,6 +10,7 @@ from typing import Any
 
 from tumblebot.errors import TumblebotError
 from tumblebot.sim.constants import MAX_STALL_TORQUE, STALL_TORQUE
+from tumblebot.sim.policy import LAYOUTS
 from tumblebot.sim.randomization import Randomization
 
 
@@ -39,6 +40,9 @@ class TrainConfig:
         init_from: checkpoint whose policy and value weights started this run (a warm
             start from another task's run, ``tumblebot train --init-from``), or None.
         init_from_steps: training steps that checkpoint had already taken.
+        observation: the policy's input layout, ``"thesis"`` (the thesis's 9 numbers) or
+            ``"context"`` (those plus the design, the steps left and the previous
+            observation; :data:`tumblebot.sim.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used
             under another servo unless asked to.
@@ -65,6 +69,7 @@ class TrainConfig:
     tumbling_designs_only: bool = False
     motor_model: str = "dc"
     stall_torque: float = STALL_TORQUE
+    observation: str = "thesis"
     init_from: str | None = None
     init_from_steps: int = 0
 
@@ -89,6 +94,8 @@ class TrainConfig:
             raise TrainingError(f"motor_model {self.motor_model!r} must be 'dc' or 'velocity'")
         if not isinstance(self.stall_torque, (int, float)) or not 0 < self.stall_torque <= MAX_STALL_TORQUE:
             raise TrainingError(f"stall_torque {self.stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
+        if self.observation not in LAYOUTS:
+            raise TrainingError(f"observation {self.observation!r} must be one of: {', '.join(LAYOUTS)}")
         if not isinstance(self.tumbling_designs_only, bool):
             raise TrainingError(f"training config tumbling_designs_only={self.tumbling_designs_only!r} "
                                 "must be true or false")

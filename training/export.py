@@ -1,7 +1,7 @@
 """Exporting a trained PPO policy to one self-contained ONNX file with a model card.
 
-The exported graph takes the thesis observation ``obs`` (float32, ``(batch, 9)``,
-dynamic batch) and returns ``action`` (int64, ``(batch, 2)``): the deterministic action,
+The exported graph takes the policy's input ``obs`` (float32, ``(batch, N)``, dynamic
+batch; N = 9 for the thesis observation, 23 for the ``context`` layout) and returns ``action`` (int64, ``(batch, 2)``): the deterministic action,
 i.e. the arg-max of each motor's logits, exactly what SB3's
 ``predict(deterministic=True)`` returns. The feature computation
 (:mod:`tumblebot.training.features`) is inside the graph.
@@ -22,10 +22,17 @@ from stable_baselines3 import PPO
 from torch import nn
 
 from tumblebot.sim.constants import STALL_TORQUE
-from tumblebot.sim.policy import ACTION_LAYOUT, OBS_LAYOUT, card_path, sha256_of
+from tumblebot.sim.policy import ACTION_LAYOUT, LAYOUTS, card_path, sha256_of
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
-from tumblebot.training.features import FEATURE_NAMES
+from tumblebot.training.features import CONTEXT_FEATURE_NAMES, FEATURE_NAMES
+
+OBSERVATION_NOTES = {
+    "thesis": "the thesis observation",
+    "context": ("the thesis observation, then the design (m), the fraction of the episode's 20 steps left "
+                "and the previous step's thesis observation (the current one before the first step); "
+                "OnnxPolicy builds it from the thesis observation and the design given at reset"),
+}
 
 
 class DeterministicActor(nn.Module):
@@ -83,7 +90,8 @@ def wall_seconds_at(run: Path, steps: int) -> float | None:
 
 def export_onnx(model: PPO, path: Path) -> None:
     actor = DeterministicActor(model).eval()
-    example = torch.zeros(4, len(OBS_LAYOUT), dtype=torch.float32)
+    size = int(model.observation_space.shape[0])  # type: ignore[index]
+    example = torch.zeros(4, size, dtype=torch.float32)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     batch = torch.export.Dim("batch", min=1)
@@ -103,11 +111,13 @@ def export_onnx(model: PPO, path: Path) -> None:
 
 def write_card(onnx_path: Path, task: str, steps: int, config: TrainConfig | None,
                extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    layout = config.observation if config else "thesis"
+    names = CONTEXT_FEATURE_NAMES if layout == "context" else FEATURE_NAMES
     card: dict[str, Any] = {
         "format": "tumblebot-policy-card/1",
         "task": task,
-        "observation": {"fields": list(OBS_LAYOUT), "dtype": "float32",
-                        "note": "thesis observation; features inside the graph: " + ", ".join(FEATURE_NAMES)},
+        "observation": {"layout": layout, "fields": list(LAYOUTS[layout]), "dtype": "float32",
+                        "note": OBSERVATION_NOTES[layout] + "; features inside the graph: " + ", ".join(names)},
         "action": {"name": "action", "dtype": "int64", "shape": ["batch", 2], **ACTION_LAYOUT},
         "training_steps": steps,
         "seed": config.seed if config else None,

@@ -9,14 +9,26 @@ of the observation, written in torch, so they are part of the exported ONNX grap
 Layout of the features (``FEATURE_NAMES``): position (3), rotation matrix row-major (9),
 goal vector in the body frame (3), its direction (3), planar distance to the origin (1),
 last command (2).
+
+A policy with the ``context`` input (:data:`tumblebot.sim.policy.LAYOUTS`) gets those
+features of the current and of the previous observation, then the design scaled by
+``1/DESIGN_SCALE``, the fraction of the episode left, and the step's planar displacement
+scaled the same way (``CONTEXT_FEATURE_NAMES``). :class:`ContextObservation` builds that
+input inside the training environments with the same :class:`ObservationContext` the
+deployed policy uses.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
+import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
+
+from tumblebot.sim.policy import LAYOUTS, OBS_LAYOUT, ObservationContext
 
 FEATURE_NAMES: tuple[str, ...] = (
     "px", "py", "pz",
@@ -26,7 +38,13 @@ FEATURE_NAMES: tuple[str, ...] = (
     "goal_distance",
     "cmd_right", "cmd_left",
 )
+CONTEXT_FEATURE_NAMES: tuple[str, ...] = (
+    *FEATURE_NAMES, *(f"prev_{name}" for name in FEATURE_NAMES),
+    "design_x", "design_y", "design_z", "design_l", "steps_left", "moved_x", "moved_y",
+)
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
+DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
+_THESIS = len(OBS_LAYOUT)
 
 
 def rotation_matrix(q: torch.Tensor) -> torch.Tensor:
@@ -54,12 +72,65 @@ class ObservationFeatures(nn.Module):
         return torch.cat([position, rot.reshape(-1, 9), goal_body, direction, distance, obs[:, 7:9]], dim=-1)
 
 
+class ContextFeatures(nn.Module):
+    """``context`` input ``(B, 23)`` → features ``(B, 49)`` (``CONTEXT_FEATURE_NAMES``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.thesis = ObservationFeatures()
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        current, previous = obs[:, 0:_THESIS], obs[:, _THESIS + 5:2 * _THESIS + 5]
+        design, steps_left = obs[:, _THESIS:_THESIS + 4], obs[:, _THESIS + 4:_THESIS + 5]
+        moved = (current[:, 0:2] - previous[:, 0:2]) / DESIGN_SCALE
+        return torch.cat([self.thesis(current), self.thesis(previous), design / DESIGN_SCALE, steps_left, moved],
+                         dim=-1)
+
+
+def features_for(size: int) -> tuple[nn.Module, int]:
+    """The feature layer for an input of ``size`` numbers, and its output size."""
+    if size == len(LAYOUTS["thesis"]):
+        return ObservationFeatures(), len(FEATURE_NAMES)
+    if size == len(LAYOUTS["context"]):
+        return ContextFeatures(), len(CONTEXT_FEATURE_NAMES)
+    raise ValueError(f"no feature layer for a {size}-number observation")
+
+
 class TumblerFeaturesExtractor(BaseFeaturesExtractor):
-    """SB3 features extractor wrapping :class:`ObservationFeatures`."""
+    """SB3 features extractor: :class:`ObservationFeatures` or :class:`ContextFeatures`,
+    by the observation's size."""
 
     def __init__(self, observation_space: gym.spaces.Box) -> None:
-        super().__init__(observation_space, features_dim=len(FEATURE_NAMES))
-        self.features = ObservationFeatures()
+        features, size = features_for(int(observation_space.shape[0]))
+        super().__init__(observation_space, features_dim=size)
+        self.features = features
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
         return self.features(observations)
+
+
+class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """A training environment whose observation is the ``context`` layout.
+
+    The input is built by :class:`ObservationContext`, exactly as :class:`OnnxPolicy`
+    builds it when deployed. Since the steps left are part of the observation, the end
+    of the episode is a true terminal state here (``terminated``), not a time-limit
+    truncation to bootstrap across.
+    """
+
+    def __init__(self, env: gym.Env[np.ndarray, np.ndarray]) -> None:
+        super().__init__(env)
+        steps = int(getattr(env.unwrapped, "episode_steps"))
+        self.context = ObservationContext("context", episode_steps=steps)
+        high = np.full(len(LAYOUTS["context"]), 100.0, dtype=np.float32)
+        self.observation_space = gym.spaces.Box(low=-high, high=high, dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.context.reset(getattr(self.env.unwrapped, "design").as_tuple())
+        return self.context(obs), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self.context(obs), float(reward), bool(terminated or truncated), False, info

@@ -28,6 +28,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import PPO
@@ -40,7 +41,7 @@ from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
-from tumblebot.training.features import TumblerFeaturesExtractor
+from tumblebot.training.features import ContextObservation, TumblerFeaturesExtractor
 
 CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
 
@@ -56,21 +57,24 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 def make_env(task: str, state_weight: float, progress_weight: float,
              randomization: Randomization | None = None, motor_model: str = "dc",
-             stall_torque: float = STALL_TORQUE) -> TumblerEnv:
-    """Environment factory, run inside each worker process."""
+             stall_torque: float = STALL_TORQUE, observation: str = "thesis") -> gym.Env[np.ndarray, np.ndarray]:
+    """Environment factory, run inside each worker process; ``observation`` ``"context"``
+    wraps it in :class:`ContextObservation`."""
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:
         # Ctrl-C reaches the whole process group; only the trainer handles it (it saves a
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    return TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                      randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
-                      stall_torque=stall_torque)
+    env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
+                     randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
+                     stall_torque=stall_torque)
+    return ContextObservation(env) if observation == "context" else env
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
-    factory: Callable[[], TumblerEnv] = partial(make_env, config.task, config.state_weight, config.progress_weight,
-                                                config.randomization(), config.motor_model, config.stall_torque)
+    factory: Callable[[], gym.Env[np.ndarray, np.ndarray]] = partial(
+        make_env, config.task, config.state_weight, config.progress_weight, config.randomization(),
+        config.motor_model, config.stall_torque, config.observation)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

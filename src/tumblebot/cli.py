@@ -138,11 +138,11 @@ def _train_run(args: argparse.Namespace) -> int:
 
     overrides = {k: v for k, v in (("total_steps", args.steps), ("n_envs", args.envs), ("seed", args.seed),
                                    ("motor_model", args.motor_model), ("stall_torque", args.stall_torque),
-                                   ("checkpoint_every", args.checkpoint_every),
+                                   ("checkpoint_every", args.checkpoint_every), ("observation", args.observation),
                                    ("init_from", None if args.init_from is None else str(args.init_from)))
                  if v is not None}
     base = TrainConfig.load(args.config).__dict__ if args.config is not None else {}
-    config = TrainConfig.from_dict({**base, "task": task.name, **overrides})
+    config = TrainConfig.from_dict({**_inherited(args.init_from), **base, "task": task.name, **overrides})
     if run_dir is None:
         import time
 
@@ -151,6 +151,57 @@ def _train_run(args: argparse.Namespace) -> int:
     final = train(config, run_dir)
     print(f"finished: {final}; learning curve {run_dir / 'learning_curve.png'}")
     return 0
+
+
+def _inherited(init_from: Path | None) -> dict[str, Any]:
+    """What a warm start takes from the run it starts from, unless told otherwise: the
+    network's input layout and size, and the servo (they must match for the weights to)."""
+    if init_from is None:
+        return {}
+    from tumblebot.training.config import TrainConfig
+    from tumblebot.training.export import run_folder
+
+    folder = run_folder(init_from)
+    if folder is None:
+        return {}
+    source = TrainConfig.load(folder / "config.json")
+    return {"observation": source.observation, "net_arch": source.net_arch, "motor_model": source.motor_model,
+            "stall_torque": source.stall_torque, "tumbling_designs_only": source.tumbling_designs_only}
+
+
+def _imitate(args: argparse.Namespace) -> int:
+    from tumblebot.sim.goto import check_navigation_task
+    from tumblebot.training.ppo import TrainingInterrupted
+
+    task = check_navigation_task(args.task)
+    from tumblebot.training.config import TrainConfig
+    from tumblebot.training.imitation import ImitationConfig, imitate
+
+    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
+    config = TrainConfig(task=task, observation="context", tumbling_designs_only=True, net_arch=args.net_arch,
+                         n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
+                         motor_model=args.motor_model or "dc",
+                         **({} if args.stall_torque is None else {"stall_torque": args.stall_torque}))
+    print(f"imitating goto on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
+          f"{config.envs} environments, in {args.run_dir}")
+    try:
+        final = imitate(config, settings, args.run_dir)
+    except TrainingInterrupted as stopped:
+        print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration "
+              "(imitation does not resume: start a new run folder)", file=sys.stderr)
+        return 130
+    print(f"finished: {final}; fine-tune it with: tumblebot train --task {task} --init-from {final}")
+    return 0
+
+
+def _net_arch(text: str) -> list[int]:
+    try:
+        sizes = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of layer sizes") from None
+    if not sizes or any(n < 1 or n > 4096 for n in sizes):
+        raise argparse.ArgumentTypeError(f"{text!r}: layer sizes must be 1–4096")
+    return sizes
 
 
 def _curve(args: argparse.Namespace) -> int:
@@ -504,8 +555,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="servo stall torque to train under (default 0.582, the thesis's motor constants)")
     p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
                    help="start a new run from the weights of another run's checkpoint (e.g. "
-                        "runs/distance-flat/latest.zip for incline); the networks must match")
+                        "runs/distance-flat/latest.zip for incline); the networks must match, and the "
+                        "observation, net_arch, servo and design draw default to that run's")
+    p.add_argument("--observation", choices=("thesis", "context"), default=None,
+                   help="policy input: the thesis's 9 numbers, or those plus the design, the steps left "
+                        "and the previous observation (default thesis)")
     p.set_defaults(func=_train)
+
+    p = sub.add_parser("imitate", help="behaviour-clone the goto controller (DAgger): a warm start for train",
+                       description="Train a context-observation policy to do what the goto controller would, "
+                                   "with DAgger: goto drives the first iteration, the student the rest, and "
+                                   "goto labels every state. The run folder is a training run: export it, or "
+                                   "fine-tune it with tumblebot train --init-from RUN/latest.zip.")
+    p.add_argument("--task", default="nav-flat", help="nav-flat or nav-terrain")
+    p.add_argument("--run-dir", type=Path, required=True, help="new run folder")
+    p.add_argument("--iterations", type=_positive_int, default=8, help="DAgger iterations (default 8)")
+    p.add_argument("--episodes", type=_positive_int, default=500, help="episodes per iteration (default 500)")
+    p.add_argument("--updates", type=_positive_int, default=4000,
+                   help="gradient steps after each iteration (default 4000)")
+    p.add_argument("--net-arch", type=_net_arch, default=[256, 256], metavar="N,N",
+                   help="hidden layer sizes (default 256,256)")
+    p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None, help="servo model (default dc)")
+    p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
+                   help="servo stall torque (default 0.582)")
+    p.set_defaults(func=_imitate)
 
     p = sub.add_parser("curve", help="learning curves of training runs, following their warm starts",
                        description="Draw each run's final-state R over environment steps, with the runs it was "

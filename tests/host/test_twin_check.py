@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 import pytest
@@ -46,13 +47,15 @@ def test_that_errors_beyond_every_simulation_are_an_alarm() -> None:
 
 
 def _errors(act: Act, seeds: list[int], start: tuple[float, float, float], env: TumblerEnv,
-            command_lasts: float = 1.0) -> list[float]:
+            command_lasts: float = 1.0, reset: Callable[[], None] | None = None) -> list[float]:
     """Final distances to the goal; ``command_lasts`` < 1 drives each decision's command for
     only that fraction of its second, then stops the legs (a keepalive that never arrives,
     so the firmware's watchdog cuts every command short)."""
     out = []
     for s in seeds:
         obs, _ = env.reset(seed=s, options={"start_xy": start[:2], "start_yaw": start[2]})
+        if reset is not None:  # a policy with memory starts every episode afresh
+            reset()
         info: dict[str, object] = {}
         if command_lasts >= 1.0:
             for _ in range(env.episode_steps):
@@ -80,8 +83,9 @@ def _check(twin_act: Act, policy: OnnxPolicy, rep: int = 0, command_lasts: float
     try:
         twin, sims = [], []
         for trial, start in enumerate(STARTS):
-            twin += _errors(twin_act, [episode_seed(10_000 + rep, trial)], start, env, command_lasts)
-            sims.append(_errors(policy.act, [episode_seed(j, trial) for j in range(16)], start, env))
+            reset = partial(policy.reset, XI3.as_tuple())
+            twin += _errors(twin_act, [episode_seed(10_000 + rep, trial)], start, env, command_lasts, reset)
+            sims.append(_errors(policy.act, [episode_seed(j, trial) for j in range(16)], start, env, reset=reset))
         return consistency_test(twin, sims)
     finally:
         env.close()
@@ -113,7 +117,7 @@ def test_that_an_injected_bug_is_caught(policy: OnnxPolicy, bug: str) -> None:
 
     acts: dict[str, Act] = {
         "servos swapped": lambda obs: policy.act(obs)[::-1],
-        "a servo's direction reversed": lambda obs: np.array([2 - policy.act(obs)[0], policy.act(obs)[1]]),
+        "a servo's direction reversed": lambda obs: np.array([2, 0]) + np.array([-1, 1]) * policy.act(obs),
         "frame rotated 90°": lambda obs: policy.act(rotate(obs)),
         "commands cut short by the watchdog": policy.act,
     }

@@ -1,0 +1,198 @@
+"""Context-observation policies: imitation of goto, export, parity, and deployment.
+
+The policy input built in training (:class:`ContextObservation`) and when deployed
+(:class:`OnnxPolicy`) must be the same numbers, step by step; a tiny DAgger run exports
+and runs in evaluation and the host like any other policy.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.cli import main
+from tumblebot.sim.design import THESIS_ROBOTS, Design
+from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.evaluate import Controller, evaluate
+from tumblebot.sim.goto import FORWARD, SPIN_POSITIVE, GotoController
+from tumblebot.sim.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError
+from tumblebot.sim.randomization import Randomization
+from tumblebot.training.config import TrainConfig
+from tumblebot.training.features import ContextObservation
+
+XI3 = THESIS_ROBOTS["3"]
+
+
+@pytest.fixture(scope="module")
+def tiny_dagger(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("dagger") / "bc"
+    assert main(["imitate", "--run-dir", str(run), "--iterations", "2", "--episodes", "3", "--updates", "30",
+                 "--net-arch", "16,16", "--envs", "1"]) == 0
+    return run
+
+
+@pytest.fixture(scope="module")
+def context_policy(tiny_dagger: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("ctx") / "nav-flat.onnx"
+    assert main(["export", str(tiny_dagger), "-o", str(out), "--eval-episodes", "0"]) == 0
+    return out
+
+
+def test_that_the_context_input_counts_down_and_remembers_the_previous_observation() -> None:
+    context = ObservationContext("context", episode_steps=20)
+    obs = [np.arange(9, dtype=np.float32) + 10 * k for k in range(3)]
+    context.reset((0.2, 0.1, 0.1, 0.15))
+    first, second, third = (context(o) for o in obs)
+    assert first.shape == (len(LAYOUTS["context"]),)
+    np.testing.assert_array_equal(first[:9], obs[0])
+    np.testing.assert_allclose(first[9:13], (0.2, 0.1, 0.1, 0.15))
+    assert (first[13], second[13], third[13]) == pytest.approx((1.0, 0.95, 0.90))
+    np.testing.assert_array_equal(first[14:], obs[0])  # before the first step: the current one again
+    np.testing.assert_array_equal(second[14:], obs[0])
+    np.testing.assert_array_equal(third[14:], obs[1])
+    context.reset((0.2, 0.1, 0.1, 0.15))
+    assert context(obs[2])[13] == 1.0  # a new episode starts over
+
+
+def test_that_a_context_input_without_a_design_is_one_clear_error() -> None:
+    context = ObservationContext("context")
+    with pytest.raises(PolicyError, match="call reset"):
+        context(np.zeros(9))
+    with pytest.raises(PolicyError, match="conditioned on the design"):
+        context.reset(None)
+    with pytest.raises(PolicyError, match="four positive lengths"):
+        context.reset((0.2, 0.1, float("nan"), 0.1))
+    context.reset((0.2, 0.1, 0.1, 0.1))
+    with pytest.raises(PolicyError, match="not the thesis's 9"):
+        context(np.zeros(23))
+
+
+def test_that_training_builds_the_same_input_the_deployed_policy_builds() -> None:
+    design = Design(0.25, 0.15, 0.12, 0.2)
+    wrapped = ContextObservation(TumblerEnv(task="nav-flat", design=design))
+    bare = TumblerEnv(task="nav-flat", design=design)
+    deployed = ObservationContext("context")
+    rng = np.random.default_rng(3)
+    try:
+        x, _ = wrapped.reset(seed=11)
+        obs, _ = bare.reset(seed=11)
+        deployed.reset(design.as_tuple())
+        for _ in range(20):
+            np.testing.assert_array_equal(x, deployed(obs))
+            action = rng.integers(0, 3, 2)
+            x, _, terminated, truncated, _ = wrapped.step(action)
+            obs, *_ = bare.step(action)
+        assert terminated and not truncated  # the steps left are observed: the end is terminal
+    finally:
+        wrapped.close()
+        bare.close()
+
+
+def test_that_goto_learns_from_the_action_actually_taken() -> None:
+    goto = GotoController()
+    obs = np.array([1.0, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0], dtype=np.float32)
+    goto.act(obs, 0)
+    goto.taken(FORWARD)  # something else drove forward 0.4 m
+    moved = obs.copy()
+    moved[0] = 0.6
+    before = dict(goto.spin_rate)
+    goto.act(moved, 1)
+    assert goto.step_length == pytest.approx(0.25 + 0.5 * (0.4 - 0.25))
+    assert goto.spin_rate == before  # no spin was taken, so the spin estimates are unchanged
+    assert SPIN_POSITIVE in goto.spin_rate
+
+
+def test_that_an_imitation_run_is_a_training_run(tiny_dagger: Path) -> None:
+    config = TrainConfig.load(tiny_dagger / "config.json")
+    assert config.observation == "context" and config.net_arch == [16, 16]
+    rows = (tiny_dagger / "imitation.csv").read_text().splitlines()
+    assert rows[0].startswith("iteration,driver") and len(rows) == 3
+    assert rows[1].split(",")[1] == "goto" and rows[2].split(",")[1] == "student"
+    assert (tiny_dagger / "latest.zip").is_file() and (tiny_dagger / "episodes.csv").is_file()
+
+
+def test_that_the_card_declares_the_context_layout(context_policy: Path) -> None:
+    card = json.loads(context_policy.with_suffix(".json").read_text())
+    assert card["observation"]["layout"] == "context"
+    assert card["observation"]["fields"] == list(LAYOUTS["context"])
+    assert "design" in card["observation"]["note"]
+    policy = OnnxPolicy(context_policy, task="nav-flat")
+    assert policy.needs_design
+    with pytest.raises(PolicyError, match="conditioned on the design"):
+        policy.reset()
+
+
+def test_that_onnx_equals_sb3_on_10000_context_inputs(tiny_dagger: Path, context_policy: Path) -> None:
+    from stable_baselines3 import PPO
+
+    model = PPO.load(tiny_dagger / "latest.zip", device="cpu")
+    policy = OnnxPolicy(context_policy, task="nav-flat")
+    env = ContextObservation(TumblerEnv(task="nav-flat"))
+    inputs, actions = [], []
+    try:
+        rng = np.random.default_rng(0)
+        for seed in range(25):  # 500 inputs from real episodes, through the deployed path too
+            x, _ = env.reset(seed=seed)
+            policy.reset(env.unwrapped.design.as_tuple())  # type: ignore[attr-defined]
+            obs = x[:9]
+            for _ in range(20):
+                inputs.append(x)
+                actions.append(policy.act(obs))
+                x, *_ = env.step(rng.integers(0, 3, 2))
+                obs = x[:9]
+    finally:
+        env.close()
+    expected, _ = model.predict(np.array(inputs), deterministic=True)
+    np.testing.assert_array_equal(np.array(actions), expected)
+    rng = np.random.default_rng(1)
+    n = 9_500
+    q = rng.normal(size=(n, 4))
+    p = rng.normal(size=(n, 4))
+    thesis = np.hstack([rng.uniform(-3, 3, (n, 2)), rng.uniform(0, 0.3, (n, 1)),
+                        q / np.linalg.norm(q, axis=1, keepdims=True), rng.integers(-1, 2, (n, 2))])
+    previous = np.hstack([thesis[:, 0:2] + rng.normal(0, 0.2, (n, 2)), rng.uniform(0, 0.3, (n, 1)),
+                          p / np.linalg.norm(p, axis=1, keepdims=True), rng.integers(-1, 2, (n, 2))])
+    designs = np.array([Design.sample(rng).as_tuple() for _ in range(n)])
+    batch = np.vstack([np.array(inputs), np.hstack([thesis, designs, rng.integers(0, 21, (n, 1)) / 20, previous])])
+    batch = batch.astype(np.float32)
+    assert len(batch) >= 10_000
+    expected, _ = model.predict(batch, deterministic=True)
+    np.testing.assert_array_equal(policy.act_batch(batch), expected)
+
+
+def test_that_evaluation_feeds_a_context_policy_the_design_and_is_worker_independent(context_policy: Path) -> None:
+    one = evaluate("nav-flat", XI3, Controller("onnx", str(context_policy)), 6, seed=2, workers=1)
+    two = evaluate("nav-flat", XI3, Controller("onnx", str(context_policy)), 6, seed=2, workers=2)
+    np.testing.assert_array_equal(one.R, two.R)
+
+
+def test_that_a_warm_start_from_an_imitation_run_keeps_its_input_and_network(tiny_dagger: Path,
+                                                                             tmp_path: Path) -> None:
+    run = tmp_path / "ft"
+    assert main(["train", "--task", "nav-flat", "--init-from", str(tiny_dagger / "latest.zip"), "--steps", "64",
+                 "--envs", "1", "--run-dir", str(run), "--checkpoint-every", "64"]) == 0
+    config = TrainConfig.load(run / "config.json")
+    assert config.observation == "context" and config.net_arch == [16, 16] and config.tumbling_designs_only
+
+
+def test_that_imitation_refuses_tasks_that_are_not_navigation(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["imitate", "--task", "incline", "--run-dir", str(tmp_path / "x")]) == 2
+    assert "not navigation" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_that_the_randomised_training_designs_reach_the_context_input() -> None:
+    env = ContextObservation(TumblerEnv(task="nav-flat", randomization=Randomization(tumbling_designs_only=True)))
+    try:
+        seen = set()
+        for seed in range(5):
+            x, _ = env.reset(seed=seed)
+            assert tuple(np.float32(env.unwrapped.design.as_tuple())) == tuple(x[9:13])  # type: ignore[attr-defined]
+            seen.add(tuple(x[9:13]))
+        assert len(seen) == 5
+    finally:
+        env.close()
