@@ -5,7 +5,9 @@ Run: ``.venv/bin/python benchmarks/bench_policy.py --run RUN --policy POLICY.onn
 ``training/checkpoints/nav-flat-tumbling``, and that policy).
 
 1. Latency per observation, onnxruntime (:class:`OnnxPolicy`, what evaluation, the
-   optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99.
+   optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99:
+   the graph alone (``act_batch`` on a ready input), and ``act`` (for a ``context``
+   policy that includes building the input from the thesis observation).
 2. Evaluation throughput on nav-flat: whole episodes with ONNX inference in the loop,
    against bare stepping of the same episodes (same scenes, same substeps, with the DC
    motor update), interleaved in one run; the ratio is the evaluation overhead.
@@ -33,21 +35,30 @@ def latency(run: Path, policy: OnnxPolicy, n: int) -> None:
     from stable_baselines3 import PPO
 
     model = PPO.load(run / "latest.zip" if run.is_dir() else run, device="cpu")
+    size = int(model.observation_space.shape[0])  # type: ignore[index]
+    if size != policy.context.size:
+        raise SystemExit(f"--run takes {size} inputs, the policy {policy.context.size}: give the run it came from")
     rng = np.random.default_rng(0)
-    obs = rng.normal(size=(n, 9)).astype(np.float32)
-    ort_t, sb3_t = [], []
-    for o in obs:
+    inputs = rng.normal(size=(n, size)).astype(np.float32)
+    graph_t, act_t, sb3_t = [], [], []
+    policy.reset((0.292, 0.129, 0.098, 0.136))
+    for k, x in enumerate(inputs):
+        if k % 20 == 0:
+            policy.reset((0.292, 0.129, 0.098, 0.136))
         t0 = time.perf_counter()
-        policy.act(o)
+        policy.act_batch(x[None])
         t1 = time.perf_counter()
-        model.predict(o, deterministic=True)
+        policy.act(x[:9])
         t2 = time.perf_counter()
-        ort_t.append(t1 - t0)
-        sb3_t.append(t2 - t1)
-    print(f"inference latency per observation ({n} calls, interleaved)")
-    for name, ts in (("onnxruntime", ort_t), ("SB3 predict", sb3_t)):
-        print(f"  {name:<12} median {np.median(ts) * 1e6:7.1f} µs   p99 {np.percentile(ts, 99) * 1e6:7.1f} µs")
-    print(f"  SB3/onnxruntime median ratio {np.median(sb3_t) / np.median(ort_t):.1f}×")
+        model.predict(x, deterministic=True)
+        t3 = time.perf_counter()
+        graph_t.append(t1 - t0)
+        act_t.append(t2 - t1)
+        sb3_t.append(t3 - t2)
+    print(f"inference latency per observation ({n} calls, interleaved; {policy.layout} input, {size} numbers)")
+    for name, ts in (("onnx graph", graph_t), ("OnnxPolicy.act", act_t), ("SB3 predict", sb3_t)):
+        print(f"  {name:<15} median {np.median(ts) * 1e6:7.1f} µs   p99 {np.percentile(ts, 99) * 1e6:7.1f} µs")
+    print(f"  SB3/onnx-graph median ratio {np.median(sb3_t) / np.median(graph_t):.1f}×")
 
 
 def throughput(policy: OnnxPolicy, episodes: int) -> None:
@@ -57,6 +68,7 @@ def throughput(policy: OnnxPolicy, episodes: int) -> None:
     for i in range(episodes):
         start = time.perf_counter()
         obs, _ = env.reset(seed=i)
+        policy.reset(env.design.as_tuple())
         t_reset.append(time.perf_counter() - start)
         infer = 0.0
         for _ in range(env.episode_steps):

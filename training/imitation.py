@@ -20,9 +20,10 @@ The run folder is a training run like any other (``config.json``, ``latest.zip``
 from __future__ import annotations
 
 import csv
+import json
 import signal
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -147,6 +148,8 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> P
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
     run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.json").write_text(config.to_json())  # rewritten with the steps taken at the end
+    (run_dir / "imitation.json").write_text(json.dumps(asdict(imitation), indent=2) + "\n")
     env = build_vec_env(config, seed=config.seed)
     model = new_model(config, env, run_dir)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
@@ -198,5 +201,4 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> P
         env.close()
     config.total_steps = max(steps, 1)
     (run_dir / "config.json").write_text(config.to_json())
-    (run_dir / "imitation.json").write_text(__import__("json").dumps(imitation.__dict__, indent=2) + "\n")
     return run_dir / "latest.zip"

@@ -141,7 +141,10 @@ def _train_run(args: argparse.Namespace) -> int:
                                    ("checkpoint_every", args.checkpoint_every), ("observation", args.observation),
                                    ("init_from", None if args.init_from is None else str(args.init_from)))
                  if v is not None}
-    base = TrainConfig.load(args.config).__dict__ if args.config is not None else {}
+    base: dict[str, Any] = {}
+    if args.config is not None:  # only the keys the file sets, so a warm start's inherited ones stay
+        loaded = TrainConfig.load(args.config).__dict__
+        base = {k: loaded[k] for k in json.loads(args.config.read_text())}
     config = TrainConfig.from_dict({**_inherited(args.init_from), **base, "task": task.name, **overrides})
     if run_dir is None:
         import time

@@ -172,10 +172,13 @@ def test_that_evaluation_feeds_a_context_policy_the_design_and_is_worker_indepen
 def test_that_a_warm_start_from_an_imitation_run_keeps_its_input_and_network(tiny_dagger: Path,
                                                                              tmp_path: Path) -> None:
     run = tmp_path / "ft"
+    settings = tmp_path / "finetune.json"  # sets a few keys; the inherited ones stay the source run's
+    settings.write_text(json.dumps({"learning_rate": 5e-5, "n_steps": 32, "batch_size": 32}))
     assert main(["train", "--task", "nav-flat", "--init-from", str(tiny_dagger / "latest.zip"), "--steps", "64",
-                 "--envs", "1", "--run-dir", str(run), "--checkpoint-every", "64"]) == 0
+                 "--envs", "1", "--run-dir", str(run), "--checkpoint-every", "64", "--config", str(settings)]) == 0
     config = TrainConfig.load(run / "config.json")
     assert config.observation == "context" and config.net_arch == [16, 16] and config.tumbling_designs_only
+    assert config.learning_rate == 5e-5 and config.n_steps == 32
 
 
 def test_that_imitation_refuses_tasks_that_are_not_navigation(tmp_path: Path,
