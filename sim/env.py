@@ -45,13 +45,14 @@ from tumblebot.sim import constants as C
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.pb import pybullet
+from tumblebot.sim.policy import OBS_LAYOUT
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.robot import RobotModel, build_robot
 from tumblebot.sim.tasks import TaskSpec, get_task
 from tumblebot.sim.terrain import TerrainConfig
 from tumblebot.sim.world import Scene, build_scene
 
-OBS_FIELDS: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
+OBS_FIELDS: tuple[str, ...] = OBS_LAYOUT
 OBS_INDEX: dict[str, int] = {name: i for i, name in enumerate(OBS_FIELDS)}
 ACTION_LABELS: tuple[str, str, str] = ("reverse", "stop", "forward")
 MotorModel = Literal["dc", "velocity"]

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.policy import POSITION, QUATERNION
 
 Action = tuple[int, int]
 
@@ -132,8 +133,8 @@ class GotoController:
     def act(self, obs: np.ndarray, step: int) -> Action:
         """The action for step ``step`` given the observation before it."""
         cfg = self.config
-        position = np.asarray(obs[0:2], dtype=float)
-        psi = heading(np.asarray(obs[3:7]))
+        position = np.asarray(obs[POSITION][:2], dtype=float)
+        psi = heading(np.asarray(obs[QUATERNION]))
         self._learn(position, psi)
         distance = float(np.hypot(*position))
         steps_left = cfg.episode_steps - step

@@ -31,9 +31,10 @@ import numpy as np
 
 from tumblebot.sim.errors import SimError
 
-#: The observation layout every policy must declare (kept in step with env.OBS_FIELDS,
-#: which a test checks; duplicated here so this module needs no PyBullet).
+#: The thesis observation, the environment's (``TumblerEnv`` takes it from here; this
+#: module needs no PyBullet): position, orientation quaternion, last command.
 OBS_LAYOUT: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
+POSITION, QUATERNION, COMMAND = slice(0, 3), slice(3, 7), slice(7, 9)  #: where each part lies in it
 CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
                                    *(f"prev_{name}" for name in OBS_LAYOUT))
 LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS}

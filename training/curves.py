@@ -11,7 +11,8 @@ import numpy as np
 def read_episodes(path: Path) -> dict[str, np.ndarray]:
     with path.open(newline="") as fh:
         rows = [r for r in csv.DictReader(fh)]
-    return {key: np.array([float(r[key]) for r in rows]) for key in ("steps", "final_R", "shaped_return")}
+    return {key: np.array([float(r[key]) if r[key] else np.nan for r in rows])  # an empty cell: not recorded
+            for key in ("steps", "final_R", "shaped_return")}
 
 
 def _smooth(values: np.ndarray, window: int) -> np.ndarray:

@@ -28,7 +28,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from tumblebot.sim.policy import LAYOUTS, OBS_LAYOUT, ObservationContext
+from tumblebot.sim.policy import COMMAND, LAYOUTS, OBS_LAYOUT, POSITION, QUATERNION, ObservationContext
 
 FEATURE_NAMES: tuple[str, ...] = (
     "px", "py", "pz",
@@ -63,13 +63,13 @@ class ObservationFeatures(nn.Module):
     """Thesis observation ``(B, 9)`` → features ``(B, 21)``."""
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        position = obs[:, 0:3]
-        rot = rotation_matrix(obs[:, 3:7])
+        position = obs[:, POSITION]
+        rot = rotation_matrix(obs[:, QUATERNION])
         to_goal = torch.cat([-position[:, 0:2], torch.zeros_like(position[:, 0:1])], dim=-1)
         goal_body = torch.bmm(rot.transpose(1, 2), to_goal.unsqueeze(-1)).squeeze(-1)
         distance = torch.linalg.vector_norm(to_goal, dim=-1, keepdim=True)
         direction = goal_body / (distance + _DIRECTION_SOFTENING)
-        return torch.cat([position, rot.reshape(-1, 9), goal_body, direction, distance, obs[:, 7:9]], dim=-1)
+        return torch.cat([position, rot.reshape(-1, 9), goal_body, direction, distance, obs[:, COMMAND]], dim=-1)
 
 
 class ContextFeatures(nn.Module):

@@ -63,6 +63,7 @@ class Batch:
     returns: np.ndarray  #: (N,) discounted shaped return from that state on
     student_agreement: float  #: fraction of student-driven states where the student chose the label
     final_R: list[float]
+    shaped_return: list[float]  #: each episode's undiscounted sum of shaped rewards
 
 
 def collect(model: object, venv: object, episodes: int, student_drives: bool, gamma: float,
@@ -78,6 +79,7 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
     labels: list[tuple[int, int]] = []
     returns: list[float] = []
     final: list[float] = []
+    shaped: list[float] = []
     agree = total = 0
     while len(final) < episodes:
         if stop.signum is not None:
@@ -103,12 +105,13 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
                     labels.append(a)
                     returns.append(g)
                 final.append(float(infos[i]["final_R"]))
+                shaped.append(sum(r for _, _, r in trace[i]))
                 trace[i], step[i] = [], 0
                 teachers[i].reset()
                 bar.update(1)
         obs = new_obs
     return Batch(np.asarray(inputs, dtype=np.float32), np.asarray(labels, dtype=np.int64),
-                 np.asarray(returns, dtype=np.float32), agree / total if total else float("nan"), final)
+                 np.asarray(returns, dtype=np.float32), agree / total if total else float("nan"), final, shaped)
 
 
 def fit(model: object, optimiser: torch.optim.Optimizer, inputs: np.ndarray, labels: np.ndarray,
@@ -185,8 +188,8 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> P
                                  f"{mean_r:.4f}" if student else "", "" if student else f"{mean_r:.4f}",
                                  f"{loss:.4f}", f"{wall:.1f}"))
                 log.flush()
-                for r in batch.final_R:
-                    episodes_writer.writerow((steps, f"{r:.5f}", "", f"{wall:.1f}"))
+                for r, g in zip(batch.final_R, batch.shaped_return, strict=True):
+                    episodes_writer.writerow((steps, f"{r:.5f}", f"{g:.5f}", f"{wall:.1f}"))
                 episodes_log.flush()
                 model.num_timesteps = steps
                 save_checkpoint(model, run_dir)
