@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.host.controller import Controller, ControllerConfig
 from tumblebot.host.link import AgentClient, load_host_key, new_key
 from tumblebot.host.mocap import open_source
@@ -67,6 +68,7 @@ def main() -> None:
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
         try:
             policy = OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")
+            policy.bind_design(XI3_ROBOT)  # as trial run --design does
             client = AgentClient(("127.0.0.1", agent_port), load_host_key(key))
             deadline = time.monotonic() + 30
             while not client.poll():  # the agent process is up
@@ -91,7 +93,9 @@ def main() -> None:
                 proc.wait()
     obs = np.array([controller.observation(controller.filter.last)] * 2000)  # type: ignore[arg-type]
     t0 = time.perf_counter()
-    for o in obs:
+    for k, o in enumerate(obs):
+        if k % 20 == 0:
+            policy.reset()  # a trial's worth of decisions, then a new trial
         policy.act(o)
     onnx_ms = (time.perf_counter() - t0) / len(obs) * 1e3
     print(f"{platform.node()} ({platform.machine()}), {args.decisions} decisions per run, {time.strftime('%Y-%m-%d')}")

@@ -119,7 +119,8 @@ class ObservationContext:
         steps_left = max(self.episode_steps - self.step, 0) / self.episode_steps
         self._previous = obs
         self.step += 1
-        return np.concatenate([obs, self._design, np.float32([steps_left]), previous]).astype(np.float32)
+        time_left = np.array([steps_left], dtype=np.float32)
+        return np.concatenate([obs, self._design, time_left, previous]).astype(np.float32)
 
 
 class OnnxPolicy:

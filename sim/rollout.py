@@ -21,7 +21,6 @@ import numpy as np
 
 from tumblebot.sim.errors import SimError
 
-
 Design4 = tuple[float, float, float, float]
 
 

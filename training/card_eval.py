@@ -45,8 +45,8 @@ def _grid() -> dict[str, Design]:
     widths = (0.190, 0.245, 0.300)
     grid: dict[str, Design] = {}
     for b, (y, z) in bodies.items():
-        for k, (l, x) in enumerate(zip(legs[b], widths if b != "medium" else widths[::-1], strict=True)):
-            grid[f"{b} body, {('short', 'medium', 'long')[k]} legs"] = Design(x, y, z, l)
+        for k, (leg, x) in enumerate(zip(legs[b], widths if b != "medium" else widths[::-1], strict=True)):
+            grid[f"{b} body, {('short', 'medium', 'long')[k]} legs"] = Design(x, y, z, leg)
     for xi in ("0", "3", "inf"):
         grid[f"thesis ξ = {'∞' if xi == 'inf' else xi} robot"] = THESIS_ROBOTS[xi]
     assert all(d.can_tumble for d in grid.values())
@@ -69,7 +69,7 @@ def _paired_p(a: EvalResult, b: EvalResult) -> float:
 def goto_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
                     workers: int) -> dict[str, Any]:
     """The policy against ``goto`` on each design, on the same episodes; a table's rows."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for label, design in designs.items():
         pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
         goto = evaluate(task, design, Controller("goto", "goto"), episodes, seed, workers, progress=True)

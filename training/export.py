@@ -1,8 +1,9 @@
 """Exporting a trained PPO policy to one self-contained ONNX file with a model card.
 
 The exported graph takes the policy's input ``obs`` (float32, ``(batch, N)``, dynamic
-batch; N = 9 for the thesis observation, 23 for the ``context`` layout) and returns ``action`` (int64, ``(batch, 2)``): the deterministic action,
-i.e. the arg-max of each motor's logits, exactly what SB3's
+batch; N = 9 for the thesis observation, 23 for the ``context`` layout) and returns
+``action`` (int64, ``(batch, 2)``): the deterministic action, i.e. the arg-max of each
+motor's logits, exactly what SB3's
 ``predict(deterministic=True)`` returns. The feature computation
 (:mod:`tumblebot.training.features`) is inside the graph.
 """

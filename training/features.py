@@ -20,7 +20,7 @@ deployed policy uses.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -120,7 +120,8 @@ class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndar
 
     def __init__(self, env: gym.Env[np.ndarray, np.ndarray]) -> None:
         super().__init__(env)
-        steps = int(getattr(env.unwrapped, "episode_steps"))
+        self._tumbler: Any = cast(Any, env.unwrapped)  # a TumblerEnv: its design and episode length
+        steps = int(self._tumbler.episode_steps)
         self.context = ObservationContext("context", episode_steps=steps)
         high = np.full(len(LAYOUTS["context"]), 100.0, dtype=np.float32)
         self.observation_space = gym.spaces.Box(low=-high, high=high, dtype=np.float32)
@@ -128,7 +129,7 @@ class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndar
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self.context.reset(getattr(self.env.unwrapped, "design").as_tuple())
+        self.context.reset(self._tumbler.design.as_tuple())
         return self.context(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:

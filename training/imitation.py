@@ -32,7 +32,14 @@ from tqdm import tqdm
 
 from tumblebot.sim.goto import GotoConfig, GotoController
 from tumblebot.training.config import TrainConfig, TrainingError
-from tumblebot.training.ppo import CSV_FIELDS, StopRequest, TrainingInterrupted, build_vec_env, new_model, save_checkpoint
+from tumblebot.training.ppo import (
+    CSV_FIELDS,
+    StopRequest,
+    TrainingInterrupted,
+    build_vec_env,
+    new_model,
+    save_checkpoint,
+)
 
 IMITATION_FIELDS = ("iteration", "driver", "episodes", "dataset", "agreement", "student_final_R", "teacher_final_R",
                     "cross_entropy", "wall_seconds")

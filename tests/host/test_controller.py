@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.host.controller import Controller, ControllerConfig
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import encode_pose_datagram, open_source
@@ -126,7 +127,9 @@ def test_that_a_trial_makes_its_decisions_on_task_frame_poses_and_ends_stopped(l
 
 
 def test_that_the_bundled_policy_drives_the_controller(lab: Lab) -> None:
-    result = lab.controller(OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")).run_trial()
+    policy = OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")
+    policy.bind_design(XI3_ROBOT)  # as trial run --design does; a design-conditioned policy needs it
+    result = lab.controller(policy).run_trial()
     assert result.status == "complete" and result.decisions == 5
 
 
