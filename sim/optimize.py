@@ -265,9 +265,10 @@ class StudyConfig:
     startup: int
     seed: int
     policies: dict[str, str] = field(default_factory=dict)  # task → SHA-256 of the ONNX file
-    #: what drove the episodes: "policy" (each task's bundled ONNX policy), or a gait name
-    #: (``goto``, the closed-loop navigation controller, or a scripted gait). Studies made
-    #: before this field existed load as "policy".
+    #: what drove the episodes: "policy" (each task's bundled ONNX policy), "thesis-policy"
+    #: (each task's bundled policy that sees only the thesis's 9-number observation), or a
+    #: gait name (``goto``, the closed-loop navigation controller, or a scripted gait).
+    #: Studies made before this field existed load as "policy".
     controller: str = "policy"
     motor_model: str = "dc"  #: the servo of every episode (SPEC: part of the objective)
     stall_torque: float = STALL_TORQUE
@@ -496,11 +497,13 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
 
 def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
                       servo: Servo | None = None) -> dict[str, Controller]:
-    """``controller`` ``"policy"`` (each task's bundled ONNX policy) or a gait name
-    (``goto`` included), as a task → :class:`Controller` map, each checked for its task
-    and ``servo`` (here, before a study is opened or written)."""
-    if controller == "policy":
-        out = {t: Controller("onnx", str(p), allow_servo_mismatch) for t, p in bundled_policies(tasks).items()}
+    """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
+    (the bundled ones with the thesis observation) or a gait name (``goto`` included), as
+    a task → :class:`Controller` map, each checked for its task and ``servo`` (here,
+    before a study is opened or written)."""
+    if controller in ("policy", "thesis-policy"):
+        out = {t: Controller("onnx", str(p), allow_servo_mismatch)
+               for t, p in bundled_policies(tasks, thesis=controller == "thesis-policy").items()}
     else:
         out = {t: Controller.of_gait(controller) for t in tasks}
     for t, c in out.items():
@@ -508,11 +511,12 @@ def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: b
     return out
 
 
-def bundled_policies(tasks: list[str]) -> dict[str, Path]:
-    """The bundled ONNX policy of each task."""
+def bundled_policies(tasks: list[str], thesis: bool = False) -> dict[str, Path]:
+    """The bundled ONNX policy of each task (with ``thesis``, the one that sees only the
+    thesis observation, :func:`~tumblebot.sim.policy.bundled_policy`)."""
     from tumblebot.sim.policy import PolicyError, bundled_policy
 
-    out = {t: bundled_policy(t) for t in tasks}
+    out = {t: bundled_policy(t, "thesis" if thesis else None) for t in tasks}
     missing = [t for t, path in out.items() if not path.is_file()]
     if missing:
         raise PolicyError(f"no bundled policy for {', '.join(missing)} yet (policies/TASK.onnx); "

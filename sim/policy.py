@@ -54,11 +54,17 @@ def sha256_of(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def bundled_policy(task: str) -> Path:
-    """The policy shipped with tumblebot for ``task`` (``policies/TASK.onnx``)."""
+def bundled_policy(task: str, layout: str | None = None) -> Path:
+    """The policy shipped with tumblebot for ``task`` (``policies/TASK.onnx``, the best
+    one). With ``layout="thesis"``, the one whose input is the thesis's 9 numbers (the
+    thesis reproduction's): ``policies/TASK-thesis.onnx`` where the best one takes more,
+    else the best one itself."""
     import tumblebot.policies
 
-    return Path(tumblebot.policies.__file__).parent / f"{task}.onnx"
+    folder = Path(tumblebot.policies.__file__).parent
+    if layout == "thesis" and (folder / f"{task}-thesis.onnx").is_file():
+        return folder / f"{task}-thesis.onnx"
+    return folder / f"{task}.onnx"
 
 
 def layout_named(fields: Sequence[str]) -> str:

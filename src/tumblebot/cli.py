@@ -349,11 +349,13 @@ def _optimize(args: argparse.Namespace) -> int:
     if args.json is not None:
         _check_writable(args.json, "--json")
     servo = _servo(args)
-    controllers = study_controllers("policy" if args.gait is None else args.gait, objective.tasks,
-                                    args.allow_servo_mismatch, servo)
+    if args.gait is not None and args.thesis_policies:
+        raise TumblebotError("give --gait or --thesis-policies, not both")
+    controller = args.gait or ("thesis-policy" if args.thesis_policies else "policy")
+    controllers = study_controllers(controller, objective.tasks, args.allow_servo_mismatch, servo)
     policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
-                            controller="policy" if args.gait is None else args.gait, servo=servo)
+                            controller=controller, servo=servo)
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
     stop = StopFlag()
@@ -415,9 +417,12 @@ def _report(args: argparse.Namespace) -> int:
 
     given = args.motor_model is not None or args.stall_torque is not None
     servo = _servo(args) if given else None  # else the studies' own
+    if args.gait is not None and args.thesis_policies:
+        raise TumblebotError("give --gait or --thesis-policies, not both")
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
-                        controller=args.gait, servo=servo, allow_servo_mismatch=args.allow_servo_mismatch)
+                        controller=args.gait or ("thesis-policy" if args.thesis_policies else None), servo=servo,
+                        allow_servo_mismatch=args.allow_servo_mismatch)
     print(f"wrote {path}")
     return 0
 
@@ -655,6 +660,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gait", default=None, metavar="goto",
                    help="drive the episodes with goto, the hand-written closed-loop navigation controller (navigation "
                         "tasks), or a scripted gait, instead of each task's bundled policy; recorded in the study")
+    p.add_argument("--thesis-policies", action="store_true",
+                   help="drive the episodes with the bundled policies that see only the thesis's 9-number "
+                        "observation (policies/TASK-thesis.onnx where the best one also takes the design), as the "
+                        "thesis did; recorded in the study")
     _add_servo_arguments(p)
     _add_mismatch_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -678,6 +687,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gait", default=None, metavar="goto",
                    help="re-evaluate every design with goto (or a gait) instead of the controller the studies used "
                         "(default: theirs, which must then agree)")
+    p.add_argument("--thesis-policies", action="store_true",
+                   help="re-evaluate with the bundled thesis-observation policies (see optimize --thesis-policies)")
     p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
                    help="re-evaluate under this servo model (default: the studies', which must agree)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",

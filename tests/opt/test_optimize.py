@@ -224,7 +224,7 @@ def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.Mon
     import tumblebot.sim.policy as policy
     from tumblebot.cli import main
 
-    monkeypatch.setattr(policy, "bundled_policy", lambda task: tmp_path / f"{task}.onnx")
+    monkeypatch.setattr(policy, "bundled_policy", lambda task, layout=None: tmp_path / f"{task}.onnx")
     code = main(["optimize", "--tasks", "incline=1", "--xi", "3", "--trials", "3", "--batch", "2",
                  "--storage", f"sqlite:///{tmp_path / 'b.db'}", "--study", "b", "--quiet"])
     err = capsys.readouterr().err

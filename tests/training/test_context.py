@@ -17,8 +17,8 @@ from tumblebot.cli import main
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.evaluate import Controller, evaluate
-from tumblebot.sim.goto import FORWARD, SPIN_POSITIVE, GotoController
-from tumblebot.sim.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError
+from tumblebot.sim.goto import FORWARD, NAVIGATION_TASKS, SPIN_POSITIVE, GotoController
+from tumblebot.sim.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError, bundled_policy
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig
 from tumblebot.training.features import ContextObservation
@@ -199,3 +199,28 @@ def test_that_the_randomised_training_designs_reach_the_context_input() -> None:
         assert len(seen) == 5
     finally:
         env.close()
+
+
+def test_that_the_thesis_observation_policies_stay_bundled_under_their_own_name() -> None:
+    from tumblebot.sim.optimize import study_controllers
+
+    for task in NAVIGATION_TASKS:
+        assert OnnxPolicy(bundled_policy(task, "thesis"), task=task).layout == "thesis"
+    for task, controller in study_controllers("thesis-policy", ["nav-flat", "incline"]).items():
+        assert OnnxPolicy(Path(controller.name), task=task).layout == "thesis"
+    best = study_controllers("policy", ["nav-flat"])["nav-flat"]
+    assert Path(best.name) == bundled_policy("nav-flat")
+
+
+def test_that_a_study_records_that_it_used_the_thesis_observation_policies(tmp_path: Path) -> None:
+    import optuna
+
+    from tumblebot.sim.optimize import load_config, open_storage
+
+    db = f"sqlite:///{tmp_path / 't.db'}"
+    assert main(["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "1", "--batch", "2",
+                 "--storage", db, "--study", "t", "--thesis-policies", "--quiet"]) == 0
+    config = load_config(optuna.load_study(study_name="t", storage=open_storage(db)))
+    assert config is not None and config.controller == "thesis-policy"
+    assert main(["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "1", "--batch", "2",
+                 "--storage", db, "--study", "t", "--gait", "goto", "--thesis-policies", "--quiet"]) == 2
