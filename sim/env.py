@@ -364,6 +364,17 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             self._set_motors(self._command)
             self._substep()
 
+    @property
+    def client_id(self) -> int:
+        """The PyBullet physics client of this environment (for tests and tools that set
+        physics up directly, e.g. pin the body; every PyBullet call must pass it)."""
+        return self._client
+
+    @property
+    def robot_id(self) -> int:
+        """The robot's PyBullet body id in :attr:`client_id` (valid after :meth:`reset`)."""
+        return self._robot
+
     def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, ...]]:
         """World-frame base position (m) and orientation quaternion ``(x, y, z, w)``."""
         position, _, orientation = self._state()

@@ -51,7 +51,7 @@ def pinned_env() -> "TumblerEnv":  # noqa: F821
 
     env = TumblerEnv(task="nav-flat", randomization=Randomization.off())
     env.reset(seed=0)
-    p.changeDynamics(env._robot, -1, mass=0.0, physicsClientId=env._client)  # pin the body
+    p.changeDynamics(env.robot_id, -1, mass=0.0, physicsClientId=env.client_id)  # pin the body
     return env
 
 
@@ -59,7 +59,7 @@ def test_that_an_unloaded_leg_spins_at_the_free_speed_under_the_dc_model() -> No
     """The DC line's free end: full command, no load (no gravity) gives γ̇ = 3.67 rad/s."""
     env = pinned_env()
     try:
-        client, robot = env._client, env._robot
+        client, robot = env.client_id, env.robot_id
         p.setGravity(0, 0, 0, physicsClientId=client)
         p.resetBasePositionAndOrientation(robot, (0, 0, 1.0), (0, 0, 0, 1), physicsClientId=client)
         env.step(np.array([2, 0]))
@@ -73,7 +73,7 @@ def test_that_a_blocked_leg_pushes_with_the_stall_torque_under_the_dc_model() ->
     """The DC line's other end: a leg held still by the ground delivers ke·V/R ≈ 0.58 N·m."""
     env = pinned_env()
     try:
-        client, robot = env._client, env._robot
+        client, robot = env.client_id, env.robot_id
         # Body pinned low enough that the legs, pointing down, press into the ground.
         z = env.design.l - 0.01
         p.resetBasePositionAndOrientation(robot, (0, 0, z), (0, 0, 0, 1), physicsClientId=client)
