@@ -221,6 +221,26 @@ def _curve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _lineage_record(run: Path, steps: int) -> list[dict[str, Any]]:
+    """The runs a checkpoint's weights went through, oldest first: each one's folder, the
+    steps taken in it and its training wall time up to there (for the model card)."""
+    from tumblebot.training.curves import CurveError, lineage
+    from tumblebot.training.export import run_folder, wall_seconds_at
+
+    folder = run_folder(run)
+    if folder is None:
+        return []
+    try:
+        chain = lineage(folder)
+    except CurveError:
+        return []
+    out = []
+    for k, (path, keep, _) in enumerate(chain):
+        used = steps if k == len(chain) - 1 else keep
+        out.append({"run": path.name, "steps": used, "wall_seconds": wall_seconds_at(path, used)})
+    return out
+
+
 def _export(args: argparse.Namespace) -> int:
     from tumblebot.sim.tasks import get_task
     from tumblebot.training.export import export_onnx, load_run, wall_seconds_at, write_card
@@ -237,6 +257,10 @@ def _export(args: argparse.Namespace) -> int:
     wall = wall_seconds_at(args.run, int(model.num_timesteps))
     if wall is not None:
         extra["training_wall_seconds"] = wall
+    chain = _lineage_record(args.run, int(model.num_timesteps))
+    if chain:
+        extra["lineage"] = chain
+        extra["lineage_wall_seconds"] = sum(r["wall_seconds"] or 0.0 for r in chain)
     if args.note:
         extra["notes"] = args.note
     write_card(args.output, task.name, int(model.num_timesteps), config, extra)
