@@ -179,6 +179,12 @@ def test_that_a_warm_start_from_an_imitation_run_keeps_its_input_and_network(tin
     config = TrainConfig.load(run / "config.json")
     assert config.observation == "context" and config.net_arch == [16, 16] and config.tumbling_designs_only
     assert config.learning_rate == 5e-5 and config.n_steps == 32
+    out = tmp_path / "ft.onnx"
+    assert main(["export", str(run), "-o", str(out), "--eval-episodes", "0"]) == 0
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert [r["run"] for r in card["lineage"]] == [tiny_dagger.name, "ft"]  # the card says where the weights came from
+    assert card["lineage"][0]["steps"] == TrainConfig.load(tiny_dagger / "config.json").total_steps
+    assert card["lineage_wall_seconds"] > 0
 
 
 def test_that_imitation_refuses_tasks_that_are_not_navigation(tmp_path: Path,
