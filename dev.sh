@@ -80,8 +80,9 @@ case "$cmd" in
             ensure_venv "train,opt,host,dev,agent"
             echo "dev.sh: ruff"
             "$VENV/bin/ruff" check .
-            echo "dev.sh: mypy"
+            echo "dev.sh: mypy (strict: the package, then tests, hil_tests, benchmarks and reports)"
             "$VENV/bin/mypy"
+            "$VENV/bin/mypy" tests hil_tests benchmarks reports
             echo "dev.sh: pytest (fast: not slow, not hil)"
             exec "$VENV/bin/python" -m pytest -m "not slow and not hil" "$@"
         fi
@@ -95,8 +96,9 @@ case "$cmd" in
         ctest --test-dir build/firmware-tests --output-on-failure
         echo "dev.sh: ruff"
         "$VENV/bin/ruff" check .
-        echo "dev.sh: mypy"
+        echo "dev.sh: mypy (strict: the package, then tests, hil_tests, benchmarks and reports)"
         "$VENV/bin/mypy"
+        "$VENV/bin/mypy" tests hil_tests benchmarks reports
         echo "dev.sh: pytest"
         # pytest exits 5 when it collects nothing; that is a failure here too.
         "$VENV/bin/python" -m pytest "$@"

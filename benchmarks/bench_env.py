@@ -21,11 +21,12 @@ import argparse
 import platform
 import statistics
 import time
+from typing import Any
 
 import numpy as np
 import psutil
 
-from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.env import MotorModel, TumblerEnv
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.tasks import TASKS
 
@@ -95,15 +96,15 @@ def motor_models(episodes: int) -> None:
     rnd = Randomization(design=False, mass_rel_sigma=0, inertia_rel_sigma=0, friction_rel_sigma=0,
                         motor_speed_sigma=0, latency=(0.0, 0.0))
     results: dict[str, tuple[list[float], list[float]]] = {}
-    envs = {m: TumblerEnv(task="distance-flat", randomization=rnd, motor_model=m)  # type: ignore[arg-type]
-            for m in ("dc", "velocity")}
+    models: tuple[MotorModel, ...] = ("dc", "velocity")
+    envs = {m: TumblerEnv(task="distance-flat", randomization=rnd, motor_model=m) for m in models}
     for m in envs:
         results[m] = ([], [])
     for i in range(episodes):
         for m, env in envs.items():
             start = time.perf_counter()
             env.reset(seed=i)
-            info: dict = {}
+            info: dict[str, Any] = {}
             for _ in range(env.episode_steps):
                 _, _, _, _, info = env.step(FORWARD)
             results[m][1].append(time.perf_counter() - start)
@@ -111,8 +112,8 @@ def motor_models(episodes: int) -> None:
     for env in envs.values():
         env.close()
     print(f"{'model':<10} {'mean px m':>10} {'sd':>6} {'episode ms':>11}")
-    for m, (dist, wall) in results.items():
-        print(f"{m:<10} {statistics.mean(dist):>10.3f} {statistics.stdev(dist):>6.3f} "
+    for model, (dist, wall) in results.items():
+        print(f"{model:<10} {statistics.mean(dist):>10.3f} {statistics.stdev(dist):>6.3f} "
               f"{statistics.median(wall) * 1e3:>11.1f}")
     d_dc, d_v = statistics.mean(results["dc"][0]), statistics.mean(results["velocity"][0])
     t_dc, t_v = statistics.median(results["dc"][1]), statistics.median(results["velocity"][1])

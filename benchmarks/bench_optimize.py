@@ -27,6 +27,7 @@ import platform
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ def main() -> None:
 
     objective = Objective({args.task: 1.0}, args.xi)
     thesis = Recipe("thesis-scaled", args.designs, args.batch, args.designs // 2, args.batch)
-    rows = []
+    rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: bundled_policy(args.task)},
                                                              workers=args.workers) as runner:
         for seed in range(args.seeds):
@@ -110,14 +111,14 @@ def main() -> None:
     best_known = max(max(r["thesis"]["fresh_objective"], r["efficient"]["fresh_objective"]) for r in rows)
     print(f"\nbest design known (fresh evaluation): objective {best_known:.5f}")
     print("seed  recipe         episodes  gap to best known  p vs thesis-scaled")
-    for r in rows:
+    for row in rows:
         for name in ("thesis", "efficient"):
-            run = r[name]
-            p = "" if name == "thesis" else f"{r['p_efficient_vs_thesis']:.3g}"
-            gap = best_known - run["fresh_objective"]
-            print(f"{r['seed']:>4}  {run['recipe']:<13} {run['episodes']:>9}  {gap:>17.5f}  {p}")
-    tied = sum(r["p_efficient_vs_thesis"] is None or r["p_efficient_vs_thesis"] > 0.05 for r in rows)
-    ratios = [r["episode_ratio"] for r in rows]
+            entry_ = row[name]
+            shown = "" if name == "thesis" else f"{row['p_efficient_vs_thesis']:.3g}"
+            gap = best_known - entry_["fresh_objective"]
+            print(f"{row['seed']:>4}  {entry_['recipe']:<13} {entry_['episodes']:>9}  {gap:>17.5f}  {shown}")
+    tied = sum(row["p_efficient_vs_thesis"] is None or row["p_efficient_vs_thesis"] > 0.05 for row in rows)
+    ratios = [row["episode_ratio"] for row in rows]
     print(f"\nefficient/thesis episodes: {np.mean(ratios):.3f} (mean over seeds); tied (p > 0.05) in {tied} of "
           f"{len(rows)} seeds; efficient better on the fresh evaluation in "
           f"{sum(r['efficient']['fresh_objective'] > r['thesis']['fresh_objective'] for r in rows)} of {len(rows)}")

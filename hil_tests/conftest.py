@@ -49,8 +49,9 @@ class Link:
         if seq is None:
             self.seq = (self.seq + 1) & 0xFFFF
             seq = self.seq
-        assert self.epoch is not None or epoch is not None
-        frame = P.Frame(self.epoch if epoch is None else epoch, seq, mtype, payload)
+        chosen = self.epoch if epoch is None else epoch
+        assert chosen is not None
+        frame = P.Frame(chosen, seq, mtype, payload)
         self.uno.write(b"\x00" + P.encode_frame(frame))  # leading delimiter: resynchronise after noise
         return seq
 

@@ -16,6 +16,7 @@ import time
 import tty
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -89,7 +90,7 @@ class Host:
         self.send(wire)
         return wire
 
-    def telemetry(self, timeout: float = 3.0) -> dict:
+    def telemetry(self, timeout: float = 3.0) -> dict[str, Any]:
         """Ask until answered (the agent answers at most 20 requests a second)."""
         nonce = random.getrandbits(32)
         deadline = time.monotonic() + timeout
@@ -105,7 +106,7 @@ class Host:
                 if P.peek_session(data) is not None:
                     continue
                 d = P.decode_datagram(data, self.keys, P.TO_HOST)
-                body = json.loads(d.payload)
+                body: dict[str, Any] = json.loads(d.payload)
                 if body["nonce"] == nonce:
                     self.last_telemetry_wire = data
                     return body
@@ -115,7 +116,7 @@ class Host:
 def free_udp_port() -> int:
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
+    port = int(s.getsockname()[1])
     s.close()
     return port
 
@@ -212,7 +213,7 @@ class Chain:
 
 
 @pytest.fixture
-def chain(tmp_path: Path) -> Iterator[tuple[EmulatedUno, Host, subprocess.Popen, Path]]:
+def chain(tmp_path: Path) -> Iterator[tuple[EmulatedUno, Host, subprocess.Popen[str], Path]]:
     c = Chain(tmp_path)
     try:
         assert c.agent is not None

@@ -50,7 +50,7 @@ def test_that_the_servos_stay_neutral_at_boot_until_a_valid_command_after_ready(
     assert ready.payload[0] == P.PROTOCOL_VERSION
     link.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(1, 1), epoch=(ready.epoch + 1) & 0xFFFF)  # stale epoch
     time.sleep(0.2)
-    assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
+    assert uno.widths() == pytest.approx((NEUTRAL, NEUTRAL), abs=1)
     errors = [f for f in link.read(0.1) + link.received if f.type == P.MsgType.ERROR]
     assert errors and errors[0].payload[0] == P.ErrorCode.STALE_EPOCH
     link.speeds(1, 1)
@@ -67,7 +67,7 @@ def test_that_a_reset_mid_run_is_neutral_until_a_new_valid_command(uno: Emulated
     uno.wait_for(NEUTRAL, NEUTRAL, timeout=0.5, tolerance=1.0)
     link.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(1, 1), epoch=old_epoch)  # a command from before the reset
     time.sleep(0.15)
-    assert uno.widths() == (pytest.approx(NEUTRAL, abs=1), pytest.approx(NEUTRAL, abs=1))
+    assert uno.widths() == pytest.approx((NEUTRAL, NEUTRAL), abs=1)
     link.speeds(-1, -1)
     uno.wait_for(NEUTRAL - 500, NEUTRAL + 500, timeout=0.1, tolerance=1.0)
 

@@ -13,11 +13,12 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.controller import Controller, ControllerConfig, TrialResult
 from tumblebot.host.link import AgentClient, load_host_key
 from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import read_trial
@@ -35,7 +36,7 @@ def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
                           timeout=timeout, check=False, stdin=subprocess.DEVNULL, env=ENV)
 
 
-def control(stack: TwinStack, msg: dict) -> dict:
+def control(stack: TwinStack, msg: dict[str, Any]) -> dict[str, Any]:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.settimeout(5)
         s.sendto(json.dumps(msg).encode(), ("127.0.0.1", stack.control_port))
@@ -83,7 +84,7 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral_within_one_second(
         source = open_source(f"udp://127.0.0.1:{stack.pose_port}?body=tumbler")
         TwinPlacer(("127.0.0.1", stack.control_port)).place(0, (0.0, 0.0), 0.0)
         controller = Controller(source, client, Forward(), (3.0, 0.0), 0.0, ControllerConfig(steps=30))
-        results: list = []
+        results: list[TrialResult] = []
         worker = threading.Thread(target=lambda: results.append(controller.run_trial()))
         worker.start()
         deadline = time.monotonic() + 10

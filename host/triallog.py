@@ -84,7 +84,7 @@ class TrialLogWriter:
             return
         self._finished = True
         try:
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]
             self._sync()
         finally:
             self._file.close()

@@ -304,7 +304,7 @@ def analyze(folder: Path, baseline: Path | None = None, baseline_stats: tuple[fl
         raise TrialError("give --baseline DIR or the --baseline-mean/--baseline-sd/--baseline-n numbers, not both")
     if baseline is not None:
         b = summarize(baseline)
-        test = stats.ttest_ind(s.errors, b.errors, equal_var=False)
+        test: Any = stats.ttest_ind(s.errors, b.errors, equal_var=False)
         out["baseline"] = {"folder": str(baseline), "design": b.plan.design, "e": b.e if math.isfinite(b.e) else None,
                            "n": len(b.errors), "mean_error": float(b.errors.mean()),
                            "sd_error": float(b.errors.std(ddof=1)) if len(b.errors) > 1 else 0.0,
@@ -329,6 +329,7 @@ def _plot(s: SetSummary, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
 
     fig, ax = plt.subplots(figsize=(6, 6))
     index = load_index(s.folder)
@@ -339,7 +340,7 @@ def _plot(s: SetSummary, path: Path) -> None:
             ax.plot(xy[:, 0], xy[:, 1], lw=0.8, alpha=0.7, color=f"C{entry['point'] % 10}")
             ax.plot(xy[-1, 0], xy[-1, 1], "o", ms=3, color=f"C{entry['point'] % 10}")
     sx, sy = s.plan.setpoint
-    ax.add_patch(plt.Circle((sx, sy), s.plan.radius, fill=False, ls=":", color="grey"))
+    ax.add_patch(Circle((sx, sy), s.plan.radius, fill=False, ls=":", color="grey"))
     for k in range(s.plan.points):
         px, py = s.plan.start_point(k)
         ax.plot(px, py, "s", color=f"C{k % 10}", ms=8)

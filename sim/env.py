@@ -368,7 +368,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
     def client_id(self) -> int:
         """The PyBullet physics client of this environment (for tests and tools that set
         physics up directly, e.g. pin the body; every PyBullet call must pass it)."""
-        return self._client
+        return int(self._client)
 
     @property
     def robot_id(self) -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -183,7 +184,7 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
 
             bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
         R, pos = runner.run_outcomes(design, [spec.name], 0, episodes, seed,
-                                     on_result=None if bar is None else bar.update)[spec.name]
+                                     on_result=None if bar is None else partial(bar.update, 1))[spec.name]
         if bar is not None:
             bar.close()
     return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,

@@ -36,7 +36,7 @@ def wrap_reward(R: float, e: float, xi: float, variant: Variant = "thesis") -> f
         return -e
     if xi == 0:
         return R
-    scale = (e + 1.0) ** xi
+    scale = float((e + 1.0) ** xi)
     if variant == "monotone" and R < 0:
         return R * scale
     return R / scale

@@ -550,7 +550,7 @@ class Progress:
 
 
 def _evaluate(objective: Objective, runner: EpisodeRunner | None, design: Design, start: int, stop: int,
-              seed: int, on_result: Callable[[], None] | None = None
+              seed: int, on_result: Callable[[], object] | None = None
               ) -> tuple[dict[str, list[float]], float, np.ndarray]:
     e = energy_per_metre(design)
     if not objective.tasks:
@@ -597,7 +597,7 @@ def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]
 
 
 def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
-             seed: int, on_result: Callable[[], None] | None = None) -> int:
+             seed: int, on_result: Callable[[], object] | None = None) -> int:
     """Extend the most promising not-yet-promoted screened trial (by :func:`screen_scores`)
     to the full batch. Returns episodes run."""
     done = promotions(study)
@@ -753,7 +753,7 @@ def _mark_interrupted(study: optuna.Study, trial: optuna.Trial) -> None:
 
 
 def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, recipe: Recipe,
-               runner: EpisodeRunner | None, seed: int, on_result: Callable[[], None] | None = None
+               runner: EpisodeRunner | None, seed: int, on_result: Callable[[], object] | None = None
                ) -> tuple[float | None, int]:
     """Evaluate one asked trial and tell its result. Returns (value or None, episodes run)."""
     from optuna.trial import TrialState

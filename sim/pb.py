@@ -40,4 +40,5 @@ def pybullet() -> ModuleType:
         os.dup2(saved[1], 2)
         for fd in (*saved, devnull):
             os.close(fd)
-    return p
+    module: ModuleType = p
+    return module

@@ -208,4 +208,4 @@ class OnnxPolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The action for the thesis observation ``obs`` before the next step."""
-        return self.act_batch(self.context(obs))[0]
+        return np.asarray(self.act_batch(self.context(obs))[0])

@@ -51,7 +51,7 @@ def theta_ddot(gamma: np.ndarray | float, l: float, r: float, gamma_dot: float =
     """
     g = np.asarray(gamma, dtype=float)
     b2 = l * l + r * r - 2.0 * l * r * np.cos(g)
-    return gamma_dot**2 * l * r * np.sin(g) * (l * l - r * r) / (b2 * b2)
+    return np.asarray(gamma_dot**2 * l * r * np.sin(g) * (l * l - r * r) / (b2 * b2))
 
 
 def theta_ddot_appendix(
@@ -71,7 +71,7 @@ def theta_ddot_appendix(
     a_dot = gamma_dot * a_inner**-1.5 * (v * (l * l * s * c) - l**3 * r * s**3) / v**2
     b_dot = -l * gamma_dot * s * v**-0.5 - l * l * r * gamma_dot * s * c * v**-1.5
     c_dot = 2 * l * l * r * gamma_dot * s * c * v**-1.5 - 3 * l**3 * r * r * gamma_dot * s**3 * v**-2.5
-    return a * (b_dot - c_dot) * gamma_dot + a_dot * (b - cc) * gamma_dot
+    return np.asarray(a * (b_dot - c_dot) * gamma_dot + a_dot * (b - cc) * gamma_dot)
 
 
 def half_tumble_power(

@@ -108,7 +108,7 @@ class EpisodeRunner:
             self._local = _Worker(self.controllers, self.servo)
 
     def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
-            on_result: Callable[[], None] | None = None) -> dict[str, np.ndarray]:
+            on_result: Callable[[], object] | None = None) -> dict[str, np.ndarray]:
         """Final-state R of episodes ``start..stop-1`` of each task, in episode order.
 
         ``on_result`` is called after every episode, in this process: a safe point, where
@@ -116,7 +116,7 @@ class EpisodeRunner:
         return {t: r for t, (r, _) in self.run_outcomes(design, tasks, start, stop, seed, on_result).items()}
 
     def run_outcomes(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
-                     on_result: Callable[[], None] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+                     on_result: Callable[[], object] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Like :meth:`run`, with the final positions too: task → (R ``(N,)``, positions ``(N, 3)``)."""
         names = [get_task(t).name for t in tasks]
         missing = [t for t in names if t not in self.controllers]

@@ -14,7 +14,7 @@ from tumblebot.sim.errors import SimError
 
 
 def _fade(t: np.ndarray) -> np.ndarray:
-    return t * t * t * (t * (t * 6 - 15) + 10)
+    return np.asarray(t * t * t * (t * (t * 6 - 15) + 10))
 
 
 def perlin(points_x: np.ndarray, points_y: np.ndarray, period: float, rng: np.random.Generator) -> np.ndarray:

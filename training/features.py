@@ -106,7 +106,8 @@ class TumblerFeaturesExtractor(BaseFeaturesExtractor):
         self.features = features
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        return self.features(observations)
+        features: torch.Tensor = self.features(observations)
+        return features
 
 
 class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):

@@ -25,6 +25,7 @@ import signal
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -74,7 +75,7 @@ class Batch:
 
 
 def collect(model: object, venv: object, episodes: int, student_drives: bool, gamma: float,
-            episode_steps: int, stop: StopRequest, bar: tqdm) -> Batch:
+            episode_steps: int, stop: StopRequest, bar: tqdm[Any]) -> Batch:
     """Run ``episodes`` episodes in ``venv``, driven by the teacher or by ``model``'s
     deterministic policy, labelling every state with the teacher's action."""
     n = venv.num_envs  # type: ignore[attr-defined]

@@ -18,6 +18,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import THESIS_ROBOTS, Design
@@ -55,10 +56,10 @@ def main() -> None:
     if args.studies:
         designs.update(study_optima(args.studies))
     policy = Controller("onnx", str(bundled_policy("nav-flat")))
-    rows = []
+    rows: list[dict[str, Any]] = []
     started = time.time()
     for label, w in designs.items():
-        row = {"design": label, "w": list(w.as_tuple()), "goto": {}, "policy": {}}
+        row: dict[str, Any] = {"design": label, "w": list(w.as_tuple()), "goto": {}, "policy": {}}
         for name, servo in SERVOS.items():
             r = evaluate("nav-flat", w, Controller.of_gait("goto"), args.episodes, 0, args.workers, servo=servo)
             row["goto"][name] = {"mean_R": r.mean_R, "ci95": list(r.ci95)}
@@ -76,8 +77,8 @@ def main() -> None:
     for row in rows:
         cells = [f"{row['goto'][n]['mean_R']:.3f}" for n in SERVOS]
         cells.append(f"{row['policy']['dc 0.58 N·m (default)']['mean_R']:.3f}")
-        w = ", ".join(f"{v:.3f}" for v in row["w"])
-        lines.append(f"| {row['design']} ({w}) | " + " | ".join(cells) + " |")
+        shown = ", ".join(f"{v:.3f}" for v in row["w"])
+        lines.append(f"| {row['design']} ({shown}) | " + " | ".join(cells) + " |")
     (HERE / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -19,7 +19,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.mark.parametrize(("design", "e_thesis"), TABLE_3_1)
-def test_that_power_json_reproduces_table_3_1_within_two_percent(design: tuple, e_thesis: float,
+def test_that_power_json_reproduces_table_3_1_within_two_percent(design: tuple[float, ...], e_thesis: float,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["power", *map(str, design), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -82,7 +82,7 @@ def test_that_sim_writes_an_animation_in_which_the_robot_moves(tmp_path: Path,
     assert main(["sim", "--task", "distance-flat", "--gait", "forward", "--video", str(gif)]) == 0
     assert "final-state R" in capsys.readouterr().out
     with Image.open(gif) as im:
-        assert im.n_frames >= 200  # 10 frames per simulated second, 20 s
+        assert getattr(im, "n_frames", 1) >= 200  # 10 frames per simulated second, 20 s
         im.seek(0)
         first = im.convert("RGB")
         im.seek(5)  # half a second in: the camera follows, the legs have turned

@@ -76,7 +76,8 @@ def test_that_the_motioncapture_adapter_reads_the_librarys_own_mock_source() -> 
         assert len(poses) >= 5
         assert poses[0].position == pytest.approx((1.0, 2.0, 0.1))
         assert poses[0].quaternion == pytest.approx((0.5, 0.5, 0.5, 0.5))
-        assert [p.seq for p in poses] == sorted(p.seq for p in poses)
+        assert [p.seq for p in poses] == sorted(p.seq or 0 for p in poses)
+        assert all(p.seq is not None for p in poses)
         assert all(b.t > a.t for a, b in itertools.pairwise(poses))
     finally:
         src.close()

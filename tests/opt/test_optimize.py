@@ -83,7 +83,7 @@ def test_that_the_objective_is_the_thesis_wrapper_summed_over_weighted_tasks() -
 def test_that_screen_scores_smooth_only_the_noisy_part(tmp_path: Path) -> None:
     """A lucky batch among bad neighbours is pulled down; e(w) stays exact."""
     study = optuna.create_study(direction="maximize", storage=f"sqlite:///{tmp_path / 'k.db'}")
-    dist = {n: optuna.distributions.FloatDistribution(*b) for n, b in
+    dist: dict[str, optuna.distributions.BaseDistribution] = {n: optuna.distributions.FloatDistribution(*b) for n, b in
             {"x": (0.189, 0.3), "y": (0.102, 0.25), "z": (0.084, 0.2), "l": (0.066, 0.25)}.items()}
     for i, (leg, R) in enumerate([(0.150, [0.2] * 4), (0.152, [0.2] * 4), (0.154, [0.9] * 4), (0.240, [0.6] * 4)]):
         params = {"x": 0.2, "y": 0.11, "z": 0.09, "l": leg}
@@ -505,7 +505,7 @@ def test_that_optuna_dashboard_opens_a_study_from_the_same_storage_url(tmp_path:
         setup_testing_defaults(environ)
         environ.update(PATH_INFO=path, REQUEST_METHOD="GET")
         status: list[str] = []
-        body = b"".join(app(environ, lambda s, h, exc=None: status.append(s)))  # type: ignore[arg-type]
+        body = b"".join(app(environ, lambda s, h, exc=None: status.append(s)))
         assert status == ["200 OK"], (path, status, body[:200])
         return json.loads(body)  # type: ignore[no-any-return]
 

@@ -49,7 +49,7 @@ def test_frame_vectors_encode_and_decode(row: list[str]) -> None:
 
 @pytest.mark.parametrize("row", vectors("reject"))
 def test_reject_vectors(row: list[str]) -> None:
-    with pytest.raises(P.ProtocolError) as info:
+    with pytest.raises(P.FrameError) as info:
         P.decode_body(unhex(row[0]))
     assert info.value.code == P.ErrorCode[row[1]]
     decoder = P.FrameDecoder()

@@ -1,4 +1,5 @@
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ from tumblebot.sim.errors import DesignError
 
 @pytest.mark.parametrize("name", PARAMETERS)
 def test_that_nan_in_any_parameter_is_rejected_by_name(name: str) -> None:
-    values = dict(x=0.25, y=0.15, z=0.12, l=0.2)
+    values: dict[str, Any] = dict(x=0.25, y=0.15, z=0.12, l=0.2)
     values[name] = math.nan
     with pytest.raises(DesignError, match=f"{name}=nan"):
         Design(**values)
@@ -23,7 +24,7 @@ def test_that_non_positive_or_infinite_values_are_rejected(bad: float) -> None:
 
 @pytest.mark.parametrize("name", PARAMETERS)
 def test_that_out_of_bounds_values_name_the_parameter_and_the_bound(name: str) -> None:
-    values = dict(x=0.25, y=0.15, z=0.12, l=0.2)
+    values: dict[str, Any] = dict(x=0.25, y=0.15, z=0.12, l=0.2)
     lo, hi = BOUNDS[name]
     values[name] = hi + 0.01
     with pytest.raises(DesignError, match=rf"{name}=.*\[{lo}, {hi}\]"):

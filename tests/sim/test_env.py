@@ -1,5 +1,6 @@
 import subprocess
 import sys
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -9,7 +10,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tumblebot.sim  # noqa: F401  (registers the environments)
 from tumblebot.sim.design import Design
-from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, TumblerEnv
+from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, MotorModel, TumblerEnv
 from tumblebot.sim.errors import SimError, UnknownTaskError
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.tasks import TASKS
@@ -19,9 +20,12 @@ from ..conftest import TASK_NAMES
 ENV_IDS = [TASKS[t].env_id for t in TASK_NAMES]
 
 
-def rollout(env: TumblerEnv, seed: int, actions: list[tuple[int, int]]) -> tuple[list[np.ndarray], list[float], dict]:
+def rollout(env: TumblerEnv, seed: int, actions: list[tuple[int, int]]
+            ) -> tuple[list[np.ndarray], list[float], dict[str, Any]]:
     obs, _ = env.reset(seed=seed)
-    observations, rewards, info = [obs], [], {}
+    observations: list[np.ndarray] = [obs]
+    rewards: list[float] = []
+    info: dict[str, Any] = {}
     for a in actions:
         obs, r, _, truncated, info = env.step(np.array(a))
         observations.append(obs)
@@ -94,7 +98,7 @@ def test_that_reusing_an_env_does_not_change_an_episode() -> None:
 
 
 @pytest.mark.parametrize("motor_model", ["dc", "velocity"])
-def test_that_restoring_a_snapshot_replays_the_same_future(motor_model: str) -> None:
+def test_that_restoring_a_snapshot_replays_the_same_future(motor_model: MotorModel) -> None:
     env = TumblerEnv(task="incline", motor_model=motor_model)
     try:
         env.reset(seed=5)

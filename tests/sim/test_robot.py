@@ -7,6 +7,7 @@ import pytest
 
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import THESIS_ROBOTS, Design
+from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL
 from tumblebot.sim.robot import RobotModel, build_robot, to_urdf
 
@@ -45,8 +46,7 @@ def test_that_the_exported_urdf_loads_in_pybullet_with_the_same_masses(tmp_path:
         p.disconnect(client)
 
 
-def pinned_env() -> "TumblerEnv":  # noqa: F821
-    from tumblebot.sim.env import TumblerEnv
+def pinned_env() -> TumblerEnv:
     from tumblebot.sim.randomization import Randomization
 
     env = TumblerEnv(task="nav-flat", randomization=Randomization.off())

@@ -1,3 +1,5 @@
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -27,6 +29,6 @@ def test_that_terrain_is_made_of_flat_tiles_within_the_height_range() -> None:
 
 
 @pytest.mark.parametrize("kwargs", [{"cells": 2}, {"cell_size": 0.0}, {"max_height": -0.1}])
-def test_that_bad_terrain_parameters_are_rejected(kwargs: dict) -> None:
+def test_that_bad_terrain_parameters_are_rejected(kwargs: dict[str, Any]) -> None:
     with pytest.raises(SimError):
         TerrainConfig(**kwargs)

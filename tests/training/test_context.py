@@ -200,7 +200,8 @@ def test_that_the_randomised_training_designs_reach_the_context_input() -> None:
         seen = set()
         for seed in range(5):
             x, _ = env.reset(seed=seed)
-            assert tuple(np.float32(env.unwrapped.design.as_tuple())) == tuple(x[9:13])  # type: ignore[attr-defined]
+            design = np.asarray(env.unwrapped.design.as_tuple(), dtype=np.float32)  # type: ignore[attr-defined]
+            np.testing.assert_array_equal(design, x[9:13])
             seen.add(tuple(x[9:13]))
         assert len(seen) == 5
     finally:

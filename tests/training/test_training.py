@@ -257,7 +257,8 @@ def test_that_the_training_environments_follow_the_configs_design_distribution()
     for only in (False, True):
         env = make_env("nav-flat", 1.0, 5.0, TrainConfig(tumbling_designs_only=only).randomization())
         try:
-            assert env.randomization.tumbling_designs_only is only and env.randomization.design
+            randomization = env.unwrapped.randomization  # type: ignore[attr-defined]
+            assert randomization.tumbling_designs_only is only and randomization.design
         finally:
             env.close()
 
