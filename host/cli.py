@@ -199,6 +199,12 @@ def _print_consistency(r: dict[str, Any]) -> None:
 
 
 def add_commands(sub: Any, positive_int: Any) -> None:
+    """Add ``trial`` and ``twin`` to the ``tumblebot`` parser's subcommands."""
+    _add_trial_commands(sub, positive_int)
+    _add_twin_commands(sub, positive_int)
+
+
+def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     p = sub.add_parser("trial", help="field trials: run a trial set with the robot, analyse it",
                        description="Field trials (thesis §3.3): start points on a circle around a setpoint, several "
                                    "trials each, the policy driving the robot from mocap poses.")
@@ -246,6 +252,8 @@ def add_commands(sub: Any, positive_int: Any) -> None:
     a.add_argument("--json", action="store_true", help="print the result as one JSON object")
     a.set_defaults(func=_trial_analyze)
 
+
+def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     p = sub.add_parser("twin", help="the digital twin: the deployed stack against the simulator and the firmware",
                        description="Simulator as world and robot, the real firmware in simavr, the real Pi agent "
                                    "and the real host controller, each its own process over the lab's links.")

@@ -15,10 +15,12 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 from tumblebot.defaults import MAX_STALL_TORQUE, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
+
+Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"  #: what build_parser's helpers add to
 
 
 def _power(args: argparse.Namespace) -> int:
@@ -524,16 +526,8 @@ def _positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from tumblebot import __version__
-
-    parser = argparse.ArgumentParser(
-        prog="tumblebot",
-        description="Simulate, train, optimise and deploy two-legged tumbling robots.",
-    )
-    parser.add_argument("--version", action="version", version=f"tumblebot {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-
+def _add_power_command(sub: Subcommands) -> None:
+    """The ``power`` command."""
     p = sub.add_parser("power", help="power model: mass and e(w) in W/m for a design",
                        description="Print the robot's mass, the two half-tumble terms and e(w) (W/m) "
                                    "from the thesis's power model (SPEC §3). Lengths in metres.")
@@ -544,6 +538,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_power)
 
+
+def _add_urdf_command(sub: Subcommands) -> None:
+    """The ``urdf`` command."""
     p = sub.add_parser("urdf", help="export a design's robot model as URDF",
                        description="Write the same model the simulator builds as a URDF file.")
     p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L",
@@ -552,6 +549,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_urdf)
 
+
+def _add_sim_command(sub: Subcommands) -> None:
+    """The ``sim`` command."""
     p = sub.add_parser("sim", help="run one episode with a scripted gait (optionally as a GIF)",
                        description="Run one 20-step episode of a task with a fixed gait and print "
                                    "the trajectory and the final-state reward R.")
@@ -568,6 +568,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_sim)
 
+
+def _add_train_command(sub: Subcommands) -> None:
+    """The ``train`` command."""
     p = sub.add_parser("train", help="train a PPO policy for a task (checkpoints, resume)",
                        description="Train a PPO policy with domain randomisation over the design bounds. "
                                    "A run folder holds config.json, checkpoints, episodes.csv, TensorBoard "
@@ -594,6 +597,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "and the previous observation (default thesis)")
     p.set_defaults(func=_train)
 
+
+def _add_imitate_command(sub: Subcommands) -> None:
+    """The ``imitate`` command."""
     p = sub.add_parser("imitate", help="behaviour-clone the goto controller (DAgger): a warm start for train",
                        description="Train a context-observation policy to do what the goto controller would, "
                                    "with DAgger: goto drives the first iteration, the student the rest, and "
@@ -614,6 +620,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="servo stall torque (default 0.582)")
     p.set_defaults(func=_imitate)
 
+
+def _add_curve_command(sub: Subcommands) -> None:
+    """The ``curve`` command."""
     p = sub.add_parser("curve", help="learning curves of training runs, following their warm starts",
                        description="Draw each run's final-state R over environment steps, with the runs it was "
                                    "warm-started from (its config's init_from, followed back) before it on the "
@@ -622,6 +631,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
     p.set_defaults(func=_curve)
 
+
+def _add_export_command(sub: Subcommands) -> None:
+    """The ``export`` command."""
     p = sub.add_parser("export", help="export a trained run to ONNX with a model card (and evaluate it)",
                        description="Write one self-contained ONNX file (dynamic batch, no side data) and "
                                    "its model card (JSON, beside it), then evaluate the policy against "
@@ -635,6 +647,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits")
     p.set_defaults(func=_export)
 
+
+def _add_evaluate_command(sub: Subcommands) -> None:
+    """The ``evaluate`` command."""
     p = sub.add_parser("evaluate", help="evaluate a policy (or a gait) on a design: mean R with a 95 %% CI",
                        description="Run N episodes of a task on one design with the bundled ONNX policy "
                                    "(or --policy / --gait). Episode i with seed S is the same whatever "
@@ -656,6 +671,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_evaluate)
 
+
+def _add_optimize_command(sub: Subcommands) -> None:
+    """The ``optimize`` command."""
     p = sub.add_parser(
         "optimize", help="Bayesian optimisation of the design (x, y, z, l) for weighted tasks",
         description="Maximise the thesis objective, the batch mean of sum_i lambda_i R_i/(e(w)+1)^xi, over the "
@@ -693,6 +711,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_optimize)
 
+
+def _add_report_command(sub: Subcommands) -> None:
+    """The ``report`` command."""
     p = sub.add_parser(
         "report", help="write a report (Markdown + plots) of optimisation studies",
         description="Write DIR/report.md with plots: the optimum of each study re-evaluated on fresh episodes, the "
@@ -721,16 +742,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_report)
 
-    from tumblebot.host.cli import add_commands as add_host_commands
 
-    add_host_commands(sub, _positive_int)
-
+def _add_demo_command(sub: Subcommands) -> None:
+    """The ``demo`` command."""
     p = sub.add_parser("demo", help="scripted episodes, the bundled policies and the power table",
                        description="A tour of the simulator in about a minute: a scripted episode of each of "
                                    "the four tasks, the bundled policies on the same robot, and the "
                                    "power model against thesis Table 3.1.")
     p.add_argument("--video-dir", type=Path, default=None, help="also write one GIF per task here")
     p.set_defaults(func=_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from tumblebot import __version__
+    from tumblebot.host.cli import add_commands as add_host_commands
+
+    parser = argparse.ArgumentParser(
+        prog="tumblebot",
+        description="Simulate, train, optimise and deploy two-legged tumbling robots.",
+    )
+    parser.add_argument("--version", action="version", version=f"tumblebot {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    _add_power_command(sub)
+    _add_urdf_command(sub)
+    _add_sim_command(sub)
+    _add_train_command(sub)
+    _add_imitate_command(sub)
+    _add_curve_command(sub)
+    _add_export_command(sub)
+    _add_evaluate_command(sub)
+    _add_optimize_command(sub)
+    _add_report_command(sub)
+    add_host_commands(sub, _positive_int)
+    _add_demo_command(sub)
     return parser
 
 
