@@ -23,6 +23,7 @@ import csv
 import json
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.goto import GotoConfig, GotoController
+from tumblebot.sim.policy import EPISODE_STEPS
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -147,8 +149,57 @@ def fit(model: object, optimiser: torch.optim.Optimizer, inputs: np.ndarray, lab
     return float(np.mean(recent))
 
 
-def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> Path:
-    """DAgger of ``goto`` into a new run in ``run_dir``; returns its checkpoint."""
+@dataclass(frozen=True)
+class IterationSummary:
+    """One DAgger iteration, as ``imitation.csv`` records it."""
+
+    iteration: int
+    driver: str  #: "goto" or "student"
+    episodes: int
+    dataset: int  #: labelled states aggregated so far
+    agreement: float  #: the student's agreement with goto where it drove (NaN for goto)
+    mean_final_R: float  #: of this iteration's episodes, under its driver
+    cross_entropy: float  #: after fitting
+    wall_seconds: float
+
+    def row(self) -> tuple[object, ...]:
+        student = self.driver == "student"
+        mean = f"{self.mean_final_R:.4f}"
+        return (self.iteration, self.driver, self.episodes, self.dataset, f"{self.agreement:.4f}",
+                mean if student else "", "" if student else mean, f"{self.cross_entropy:.4f}",
+                f"{self.wall_seconds:.1f}")
+
+    def describe(self) -> str:
+        agreement = f", agreement with goto {self.agreement:.3f}" if self.driver == "student" else ""
+        return (f"DAgger {self.iteration}: {self.driver} mean final R {self.mean_final_R:.3f}{agreement}; "
+                f"cross-entropy after fitting {self.cross_entropy:.3f}")
+
+
+class _RunLogs:
+    """``imitation.csv`` (one row per iteration) and ``episodes.csv`` (one per episode,
+    the columns of a PPO run's, so learning curves read both)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.log = (run_dir / "imitation.csv").open("w", newline="")
+        self.episodes = (run_dir / "episodes.csv").open("w", newline="")
+        self.writer, self.episodes_writer = csv.writer(self.log), csv.writer(self.episodes)
+        self.writer.writerow(IMITATION_FIELDS)
+        self.episodes_writer.writerow(CSV_FIELDS)
+
+    def record(self, summary: IterationSummary, batch: Batch, steps: int) -> None:
+        self.writer.writerow(summary.row())
+        self.log.flush()
+        for r, g in zip(batch.final_R, batch.shaped_return, strict=True):
+            self.episodes_writer.writerow((steps, f"{r:.5f}", f"{g:.5f}", f"{summary.wall_seconds:.1f}"))
+        self.episodes.flush()
+
+    def close(self) -> None:
+        self.log.close()
+        self.episodes.close()
+
+
+def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> None:
+    """Check the run can start, then write its config (rewritten with the steps taken at the end)."""
     if config.observation != "context":
         raise TrainingError("imitation needs the context observation (goto uses memory the thesis's 9 numbers lack)")
     from tumblebot.sim.goto import check_navigation_task
@@ -156,59 +207,51 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> P
     check_navigation_task(config.task)
     if (run_dir / "latest.zip").exists():
         raise TrainingError(f"{run_dir} already holds a run")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.json").write_text(config.to_json())
+    (run_dir / "imitation.json").write_text(json.dumps(asdict(imitation), indent=2) + "\n")
+
+
+def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
+            on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
+    """DAgger of ``goto`` into a new run in ``run_dir``; returns its checkpoint.
+    ``on_iteration`` sees each iteration's summary (the CLI prints it)."""
+    _new_run(config, imitation, run_dir)
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(config.to_json())  # rewritten with the steps taken at the end
-    (run_dir / "imitation.json").write_text(json.dumps(asdict(imitation), indent=2) + "\n")
     env = build_vec_env(config, seed=config.seed)
     model = new_model(config, env, run_dir)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
     stop = StopRequest()
     previous = signal.signal(signal.SIGINT, stop), signal.signal(signal.SIGTERM, stop)
-    start = time.monotonic()
-    steps = 0
+    start, steps = time.monotonic(), 0
     data: list[Batch] = []
-    episode_steps = 20
+    logs = _RunLogs(run_dir)
     try:
-        with (run_dir / "imitation.csv").open("w", newline="") as log, \
-                (run_dir / "episodes.csv").open("w", newline="") as episodes_log:
-            writer, episodes_writer = csv.writer(log), csv.writer(episodes_log)
-            writer.writerow(IMITATION_FIELDS)
-            episodes_writer.writerow(CSV_FIELDS)
-            for iteration in range(imitation.iterations):
-                student = iteration > 0
-                with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
-                          desc=f"DAgger {iteration}/{imitation.iterations - 1} ({'student' if student else 'goto'})"
-                          ) as bar:
-                    batch = collect(model, env, imitation.episodes, student, config.gamma, episode_steps, stop, bar)
-                data.append(batch)
-                steps += len(batch.labels)
-                inputs = np.concatenate([b.inputs for b in data])
-                labels = np.concatenate([b.labels for b in data])
-                returns = np.concatenate([b.returns for b in data])
-                np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=returns)
-                loss = fit(model, optimiser, inputs, labels, returns, imitation, config.seed + iteration, stop)
-                wall = time.monotonic() - start
-                mean_r = float(np.mean(batch.final_R))
-                writer.writerow((iteration, "student" if student else "goto", len(batch.final_R),
-                                 sum(len(b.labels) for b in data), f"{batch.student_agreement:.4f}",
-                                 f"{mean_r:.4f}" if student else "", "" if student else f"{mean_r:.4f}",
-                                 f"{loss:.4f}", f"{wall:.1f}"))
-                log.flush()
-                for r, g in zip(batch.final_R, batch.shaped_return, strict=True):
-                    episodes_writer.writerow((steps, f"{r:.5f}", f"{g:.5f}", f"{wall:.1f}"))
-                episodes_log.flush()
-                model.num_timesteps = steps
-                save_checkpoint(model, run_dir)
-                print(f"DAgger {iteration}: {'student' if student else 'goto'} mean final R {mean_r:.3f}"
-                      + (f", agreement with goto {batch.student_agreement:.3f}" if student else "")
-                      + f"; cross-entropy after fitting {loss:.3f}", flush=True)
+        for iteration in range(imitation.iterations):
+            driver = "student" if iteration > 0 else "goto"
+            with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
+                      desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
+                batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS, stop, bar)
+            data.append(batch)
+            steps += len(batch.labels)
+            inputs, labels, returns = (np.concatenate([getattr(b, k) for b in data])
+                                       for k in ("inputs", "labels", "returns"))
+            np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=returns)
+            loss = fit(model, optimiser, inputs, labels, returns, imitation, config.seed + iteration, stop)
+            summary = IterationSummary(iteration, driver, len(batch.final_R), len(labels), batch.student_agreement,
+                                       float(np.mean(batch.final_R)), loss, time.monotonic() - start)
+            logs.record(summary, batch, steps)
+            model.num_timesteps = steps
+            save_checkpoint(model, run_dir)
+            if on_iteration is not None:
+                on_iteration(summary)
     except KeyboardInterrupt:
         raise TrainingInterrupted(steps, run_dir) from None
     finally:
         signal.signal(signal.SIGINT, previous[0])
         signal.signal(signal.SIGTERM, previous[1])
+        logs.close()
         env.close()
     config.total_steps = max(steps, 1)
     (run_dir / "config.json").write_text(config.to_json())

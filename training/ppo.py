@@ -213,14 +213,11 @@ def warm_start(model: PPO, checkpoint: Path) -> int:
     return int(source.num_timesteps)
 
 
-def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total_steps: int | None = None) -> Path:
-    """Train (or resume) a run in ``run_dir``; returns the path of the final checkpoint.
-
-    With ``resume``, the config is read from ``run_dir/config.json`` (``total_steps`` may
-    extend it) and training continues from ``latest.zip``. A new run whose config names
-    ``init_from`` starts from that checkpoint's weights (a warm start; steps count from 0).
-    """
-    torch.set_num_threads(1)
+def _open_run(config: TrainConfig | None, run_dir: Path, resume: bool, total_steps: int | None
+              ) -> tuple[TrainConfig, PPO, VecEnv, int, float]:
+    """The run's config, model and environments, and the steps and wall time it starts
+    from: read back from ``run_dir`` (``resume``), or new (checked before anything is
+    written; a warm start copies ``init_from``'s weights)."""
     config_path = run_dir / "config.json"
     if resume:
         if not (run_dir / "latest.zip").exists():
@@ -229,33 +226,41 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
         if total_steps is not None:
             config.total_steps = total_steps
             config_path.write_text(config.to_json())
-    else:
-        if config is None:
-            raise TrainingError("a new run needs a training config")
-        if (run_dir / "latest.zip").exists():
-            raise TrainingError(f"{run_dir} already holds a run; pass --resume to continue it")
-        if config.init_from is not None and not Path(config.init_from).is_file():
-            raise TrainingError(f"--init-from: {config.init_from} does not exist")
-        run_dir.mkdir(parents=True, exist_ok=True)
-
-    if resume:
         model = PPO.load(run_dir / "latest.zip", device="cpu")
         start = model.num_timesteps
         wall_offset = _trim_csv(run_dir / "episodes.csv", start)
         env = build_vec_env(config, seed=config.seed + start)
         model.set_env(env)
         model.tensorboard_log = str(run_dir / "tb")
-    else:
-        env = build_vec_env(config, seed=config.seed)
-        model = new_model(config, env, run_dir)
-        if config.init_from is not None:
-            try:
-                config.init_from_steps = warm_start(model, Path(config.init_from))
-            except TrainingError:
-                env.close()
-                raise
-        config_path.write_text(config.to_json())
-        start, wall_offset = 0, 0.0
+        return config, model, env, start, wall_offset
+    if config is None:
+        raise TrainingError("a new run needs a training config")
+    if (run_dir / "latest.zip").exists():
+        raise TrainingError(f"{run_dir} already holds a run; pass --resume to continue it")
+    if config.init_from is not None and not Path(config.init_from).is_file():
+        raise TrainingError(f"--init-from: {config.init_from} does not exist")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    env = build_vec_env(config, seed=config.seed)
+    model = new_model(config, env, run_dir)
+    if config.init_from is not None:
+        try:
+            config.init_from_steps = warm_start(model, Path(config.init_from))
+        except TrainingError:
+            env.close()
+            raise
+    config_path.write_text(config.to_json())
+    return config, model, env, 0, 0.0
+
+
+def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total_steps: int | None = None) -> Path:
+    """Train (or resume) a run in ``run_dir``; returns the path of the final checkpoint.
+
+    With ``resume``, the config is read from ``run_dir/config.json`` (``total_steps`` may
+    extend it) and training continues from ``latest.zip``. A new run whose config names
+    ``init_from`` starts from that checkpoint's weights (a warm start; steps count from 0).
+    """
+    torch.set_num_threads(1)
+    config, model, env, start, wall_offset = _open_run(config, run_dir, resume, total_steps)
     stop = StopRequest()
     callback = RunCallback(run_dir, config, start, wall_offset, stop)
     previous_term = signal.signal(signal.SIGTERM, stop)  # `kill`, systemd, batch schedulers

@@ -190,7 +190,8 @@ def _imitate(args: argparse.Namespace) -> int:
     print(f"imitating goto on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
           f"{config.envs} environments, in {args.run_dir}")
     try:
-        final = imitate(config, settings, args.run_dir)
+        final = imitate(config, settings, args.run_dir,
+                        on_iteration=lambda summary: print(summary.describe(), flush=True))
     except TrainingInterrupted as stopped:
         print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration "
               "(imitation does not resume: start a new run folder)", file=sys.stderr)
