@@ -70,6 +70,53 @@ def _rel(rng: np.random.Generator, sigma: float, size: int | None = None) -> Any
 
 
 @dataclass(frozen=True)
+class _WorldDraws:
+    """An episode's world draws: a fixed count in a fixed order, whatever the design and
+    whatever is then used of them (common random numbers across designs)."""
+
+    mass_scale: float
+    leg_mass_scale: float
+    inertia_scale: tuple[float, float, float]
+    friction: float
+    leg_angles: tuple[float, float]
+    roll: float  #: rad: which long face the robot starts on
+    yaw: float  #: rad, for a ring start
+    yaw_jitter: float  #: rad, around +y for a start at the origin
+    distance: float  #: m from the origin, for a ring start
+    direction: float  #: rad, for a ring start
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, rnd: Randomization, start_distance: tuple[float, float]) -> _WorldDraws:
+        mass_scale = float(_rel(rng, rnd.mass_rel_sigma))
+        leg_mass_scale = float(_rel(rng, rnd.mass_rel_sigma))
+        inertia = _rel(rng, rnd.inertia_rel_sigma, 3)
+        friction = rnd.friction * float(_rel(rng, rnd.friction_rel_sigma))
+        legs = rng.uniform(-math.pi, math.pi, 2)
+        roll = int(rng.integers(4)) * math.pi / 2
+        yaw = float(rng.uniform(0.0, 2 * math.pi))
+        jitter = float(rng.uniform(-0.1, 0.1))
+        distance = float(rng.uniform(*start_distance))
+        direction = float(rng.uniform(0.0, 2 * math.pi))
+        return cls(mass_scale, leg_mass_scale, (float(inertia[0]), float(inertia[1]), float(inertia[2])), friction,
+                   (float(legs[0]), float(legs[1])), roll, yaw, jitter, distance, direction)
+
+    def start(self, ring: bool, start_pose: bool, options: Mapping[str, Any]) -> tuple[tuple[float, float], float]:
+        """Start position and yaw: on the ring or at the origin, unless ``options`` gives
+        them (field-trial start points, the digital twin)."""
+        if ring:
+            xy = (self.distance * math.cos(self.direction), self.distance * math.sin(self.direction))
+            yaw = self.yaw
+        else:
+            xy, yaw = (0.0, 0.0), math.pi / 2 + (self.yaw_jitter if start_pose else 0.0)
+        given_xy, given_yaw = options.get("start_xy"), options.get("start_yaw")
+        if given_xy is not None:
+            xy = (float(given_xy[0]), float(given_xy[1]))
+        if given_yaw is not None:
+            yaw = float(given_yaw)
+        return xy, yaw
+
+
+@dataclass(frozen=True)
 class EnvSnapshot:
     """What :meth:`TumblerEnv.snapshot` saves (the physics itself stays in the server)."""
 
@@ -196,18 +243,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         rnd = self.randomization
 
         self.design = self._choose_design(options.get("design"), design_rng)
-        # World draws: a fixed count in a fixed order, whatever the design (common random numbers).
-        mass_scale = _rel(world_rng, rnd.mass_rel_sigma)
-        leg_mass_scale = _rel(world_rng, rnd.mass_rel_sigma)
-        inertia_scale = _rel(world_rng, rnd.inertia_rel_sigma, 3)
-        friction = rnd.friction * float(_rel(world_rng, rnd.friction_rel_sigma))
-        leg_draw = world_rng.uniform(-math.pi, math.pi, 2)
-        roll_draw = int(world_rng.integers(4))
-        yaw_draw = float(world_rng.uniform(0.0, 2 * math.pi))
-        yaw_jitter = float(world_rng.uniform(-0.1, 0.1))
-        dist_draw = float(world_rng.uniform(*self.start_distance))
-        dir_draw = float(world_rng.uniform(0.0, 2 * math.pi))
-        start_xy, start_yaw = options.get("start_xy"), options.get("start_yaw")
+        draws = _WorldDraws.draw(world_rng, rnd, self.start_distance)
         terrain_rng = np.random.default_rng(world_rng.integers(2**63))
 
         p, c = self._p, self._client
@@ -215,24 +251,14 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         p.setGravity(0.0, 0.0, -C.GRAVITY, physicsClientId=c)
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / self.physics_hz, numSubSteps=1,
                                     deterministicOverlappingPairs=1, physicsClientId=c)
+        friction = draws.friction
         self._scene = build_scene(c, self.task, terrain_rng, self.terrain_config, friction)
 
         self.model = RobotModel.from_design(self.design).scaled(
-            body_mass=float(mass_scale), body_inertia=tuple(inertia_scale.tolist()),
-            leg_mass=float(leg_mass_scale))
-        leg_angles = (float(leg_draw[0]), float(leg_draw[1])) if rnd.leg_angles else (0.0, 0.0)
-        roll = roll_draw * math.pi / 2 if rnd.start_pose else 0.0
-        if self.task.start == "ring":
-            xy = (dist_draw * math.cos(dir_draw), dist_draw * math.sin(dir_draw))
-            yaw = yaw_draw
-        else:
-            xy = (0.0, 0.0)
-            yaw = math.pi / 2 + (yaw_jitter if rnd.start_pose else 0.0)
-        if start_xy is not None:  # a given start (field-trial start points, the digital twin)
-            xy = (float(start_xy[0]), float(start_xy[1]))
-        if start_yaw is not None:
-            yaw = float(start_yaw)
-        orientation = p.getQuaternionFromEuler([roll, 0.0, yaw])
+            body_mass=draws.mass_scale, body_inertia=draws.inertia_scale, leg_mass=draws.leg_mass_scale)
+        leg_angles = draws.leg_angles if rnd.leg_angles else (0.0, 0.0)
+        xy, yaw = draws.start(self.task.start == "ring", rnd.start_pose, options)
+        orientation = p.getQuaternionFromEuler([draws.roll if rnd.start_pose else 0.0, 0.0, yaw])
         depth = self._lowest_point(orientation, leg_angles)
         reach = max(self.design.x, self.design.y, self.design.z, self.design.l)
         z = self._scene.ground_height(xy[0], xy[1], reach) + depth + 0.003
