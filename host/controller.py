@@ -30,6 +30,24 @@ from tumblebot.sim.frames import to_task_frame
 COMPLETE = "complete"
 
 
+@dataclass
+class _TrialState:
+    """Where a running trial stands (times from ``time.monotonic``)."""
+
+    start: float
+    end: float  #: when the last decision's period is over
+    next_decision: float
+    decisions: int = 0
+    last_sent: float = -1e9  #: when a command last left (keepalives follow it)
+    fresh: Pose | None = None  #: the newest pose
+    latencies: list[float] = field(default_factory=list)
+    times: list[tuple[float, float | None, float]] = field(default_factory=list)
+
+    @classmethod
+    def starting(cls, now: float, config: ControllerConfig) -> _TrialState:
+        return cls(start=now, end=now + config.steps * config.period, next_decision=now)
+
+
 class ControllerError(TumblebotError):
     """A controller configuration that cannot work (a non-positive period, no steps, …)."""
 
@@ -140,107 +158,131 @@ class Controller:
     def run_trial(self, log: TrialLogWriter | BackgroundLog | None = None,
                   on_status: Callable[[int, Pose | None, float], None] | None = None) -> TrialResult:
         """One trial. Always leaves the robot stopped (STOP is sent in ``finally``)."""
-        cfg = self.config
-        self.command = (0, 0)
+        self._begin_trial()
         result: TrialResult | None = None
-        # A new trial: forget the last one's poses, and drop poses queued while the robot
-        # was being placed (they show where it was, not where it is).
-        self.filter = PoseFilter(cfg.max_speed, cfg.lost_after)
-        self.drain()
-        reset = getattr(self.policy, "reset", None)
-        if callable(reset):  # a controller with memory (goto, a context policy) starts every trial afresh
-            reset()
-
-        def event(name: str, detail: str = "") -> None:
-            if log is not None:
-                log.write("/event", {"event": name, "detail": detail})
-
         try:
-            if self.wait_for_tracking(cfg.first_pose_timeout, log) is None:
-                result = TrialResult("no_mocap", f"no pose from {self.source.url} for {cfg.first_pose_timeout:.1f} s",
-                                     0)
+            result = self._wait_for_tracking_and_agent(log)
+            if result is not None:
                 return result
-            self.agent.request_telemetry()
-            deadline = time.monotonic() + cfg.agent_timeout
-            while not self.agent.poll():
-                if time.monotonic() - self.agent.last_request_at >= cfg.telemetry_every:
-                    self.agent.request_telemetry()  # a request lost on the network is not a lost agent
-                if time.monotonic() > deadline:
-                    result = TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
-                                         f" did not answer within {cfg.agent_timeout:.1f} s", 0)
-                    return result
-                self.pump(0.02, log)
-            event("start", f"setpoint {self.setpoint}, heading {self.heading:.3f} rad")
-            start = time.monotonic()
-            next_decision, decisions = start, 0
-            end = start + cfg.steps * cfg.period
-            last_sent = -1e9
-            latencies: list[float] = []
-            times: list[tuple[float, float | None, float]] = []
-            fresh: Pose | None = None
-            while True:
-                now = time.monotonic()
-                timeout = min(0.02, max(0.0, next_decision - now)) if decisions < cfg.steps else 0.02
-                arrived = self.pump(timeout, log, defer_log=True)
-                if arrived:
-                    fresh = arrived[-1]
-                now = time.monotonic()
-                decision: dict[str, Any] | None = None
-                if decisions < cfg.steps and fresh is not None and fresh.t >= next_decision - 1e-3 \
-                        and now >= next_decision - 1e-3:
-                    obs = self.observation(fresh)
-                    action = np.asarray(self.policy.act(obs)).reshape(-1)
-                    self.command = (int(action[0]) - 1, int(action[1]) - 1)
-                    last_sent = self.agent.command(*self.command)
-                    latency = (last_sent - fresh.t) * 1e3
-                    latencies.append(latency)
-                    times.append((fresh.t, fresh.source_time, last_sent))
-                    decision = {"step": decisions, "observation": [float(v) for v in obs],
-                                "command": list(self.command), "distance": self.distance(fresh), "latency_ms": latency}
-                    decisions += 1
-                    next_decision = start + decisions * cfg.period
-                if log is not None:  # after the command has left: logging never delays a decision
-                    for pose in arrived:
-                        log.write("/pose", pose.to_json())
-                    if decision is not None:
-                        log.write("/decision", decision)
-                        log.write("/command", {"right": self.command[0], "left": self.command[1], "kind": "policy"})
-                if decision is not None and on_status is not None and fresh is not None:
-                    on_status(decisions, fresh, self.distance(fresh))
-                if decisions >= cfg.steps and now >= end:
-                    final = self.filter.last
-                    assert final is not None
-                    stop_sent = self.stop_robot(log, "end of trial")
-                    result = TrialResult(COMPLETE, "all decisions made", decisions, final.position,
-                                         self.distance(final), latencies, times, stop_sent - now)
-                    event("end", f"final error {result.final_error:.3f} m")
-                    return result
-                if self.filter.lost(now):
-                    assert self.filter.last is not None
-                    lost_at = self.filter.last.t + cfg.lost_after
-                    stop_sent = self.stop_robot(log, "mocap lost")
-                    result = TrialResult("mocap_lost", f"no pose for {self.filter.age(now):.2f} s", decisions,
-                                         latencies_ms=latencies, stop_latency=stop_sent - lost_at)
-                    return result
-                if now - self.agent.last_request_at >= cfg.telemetry_every:
-                    self.agent.request_telemetry()
-                for body in self.agent.poll():
-                    if log is not None:
-                        log.write("/telemetry", body)
-                if self.agent.silent_for(now) > cfg.agent_timeout:
-                    stop_sent = self.stop_robot(log, "agent not answering")
-                    result = TrialResult("agent_lost", f"no telemetry from the agent for "
-                                         f"{self.agent.silent_for(now):.1f} s", decisions, latencies_ms=latencies,
-                                         stop_latency=stop_sent - (self.agent.last_telemetry_at + cfg.agent_timeout))
-                    return result
-                if now - last_sent >= cfg.keepalive:
-                    last_sent = self.agent.command(*self.command)
+            self._event(log, "start", f"setpoint {self.setpoint}, heading {self.heading:.3f} rad")
+            state = _TrialState.starting(time.monotonic(), self.config)
+            while result is None:
+                result = self._tick(state, log, on_status)
+            return result
         except KeyboardInterrupt:
             self.stop_robot(log, "interrupted")
-            event("interrupted", "Ctrl-C")
+            self._event(log, "interrupted", "Ctrl-C")
             raise
         finally:
             for _ in range(3):  # the robot is stopped whatever happened; repeated in case one is lost
                 self.agent.stop()
-            if result is not None and result.status != COMPLETE and log is not None:
-                event(result.status, result.reason)
+            if result is not None and result.status != COMPLETE:
+                self._event(log, result.status, result.reason)
+
+    def _begin_trial(self) -> None:
+        """Forget the last trial's poses, drop poses queued while the robot was being placed
+        (they show where it was, not where it is), and restart a controller with memory
+        (goto, a context policy)."""
+        self.command = (0, 0)
+        self.filter = PoseFilter(self.config.max_speed, self.config.lost_after)
+        self.drain()
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):
+            reset()
+
+    @staticmethod
+    def _event(log: TrialLogWriter | BackgroundLog | None, name: str, detail: str = "") -> None:
+        if log is not None:
+            log.write("/event", {"event": name, "detail": detail})
+
+    def _wait_for_tracking_and_agent(self, log: TrialLogWriter | BackgroundLog | None) -> TrialResult | None:
+        """None once the robot is tracked and the agent answers; else why the trial cannot start."""
+        cfg = self.config
+        if self.wait_for_tracking(cfg.first_pose_timeout, log) is None:
+            return TrialResult("no_mocap", f"no pose from {self.source.url} for {cfg.first_pose_timeout:.1f} s", 0)
+        self.agent.request_telemetry()
+        deadline = time.monotonic() + cfg.agent_timeout
+        while not self.agent.poll():
+            if time.monotonic() - self.agent.last_request_at >= cfg.telemetry_every:
+                self.agent.request_telemetry()  # a request lost on the network is not a lost agent
+            if time.monotonic() > deadline:
+                return TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
+                                   f" did not answer within {cfg.agent_timeout:.1f} s", 0)
+            self.pump(0.02, log)
+        return None
+
+    def _tick(self, state: _TrialState, log: TrialLogWriter | BackgroundLog | None,
+              on_status: Callable[[int, Pose | None, float], None] | None) -> TrialResult | None:
+        """One pass of the trial loop: take poses, decide when a decision is due, log after
+        the command has left, then check how the trial stands. None while it goes on."""
+        cfg = self.config
+        now = time.monotonic()
+        due = state.decisions < cfg.steps
+        arrived = self.pump(min(0.02, max(0.0, state.next_decision - now)) if due else 0.02, log, defer_log=True)
+        if arrived:
+            state.fresh = arrived[-1]
+        now = time.monotonic()
+        decision = self._decide(state, now)
+        if log is not None:  # after the command has left: logging never delays a decision
+            for pose in arrived:
+                log.write("/pose", pose.to_json())
+            if decision is not None:
+                log.write("/decision", decision)
+                log.write("/command", {"right": self.command[0], "left": self.command[1], "kind": "policy"})
+        if decision is not None and on_status is not None and state.fresh is not None:
+            on_status(state.decisions, state.fresh, self.distance(state.fresh))
+        result = self._verdict(state, now, log)
+        if result is None and now - state.last_sent >= cfg.keepalive:
+            state.last_sent = self.agent.command(*self.command)
+        return result
+
+    def _decide(self, state: _TrialState, now: float) -> dict[str, Any] | None:
+        """Ask the policy and send its command, if a decision is due and a pose newer than
+        its time has arrived; returns the decision's log record."""
+        fresh = state.fresh
+        if state.decisions >= self.config.steps or fresh is None or fresh.t < state.next_decision - 1e-3 \
+                or now < state.next_decision - 1e-3:
+            return None
+        obs = self.observation(fresh)
+        action = np.asarray(self.policy.act(obs)).reshape(-1)
+        self.command = (int(action[0]) - 1, int(action[1]) - 1)
+        state.last_sent = self.agent.command(*self.command)
+        latency = (state.last_sent - fresh.t) * 1e3
+        state.latencies.append(latency)
+        state.times.append((fresh.t, fresh.source_time, state.last_sent))
+        decision = {"step": state.decisions, "observation": [float(v) for v in obs],
+                    "command": list(self.command), "distance": self.distance(fresh), "latency_ms": latency}
+        state.decisions += 1
+        state.next_decision = state.start + state.decisions * self.config.period
+        return decision
+
+    def _verdict(self, state: _TrialState, now: float, log: TrialLogWriter | BackgroundLog | None
+                 ) -> TrialResult | None:
+        """The trial's end, if it has come: every decision made, the pose lost, or the agent
+        silent (telemetry is asked for and logged on the way). None while it goes on."""
+        cfg = self.config
+        if state.decisions >= cfg.steps and now >= state.end:
+            final = self.filter.last
+            assert final is not None
+            stop_sent = self.stop_robot(log, "end of trial")
+            result = TrialResult(COMPLETE, "all decisions made", state.decisions, final.position,
+                                 self.distance(final), state.latencies, state.times, stop_sent - now)
+            self._event(log, "end", f"final error {result.final_error:.3f} m")
+            return result
+        if self.filter.lost(now):
+            assert self.filter.last is not None
+            lost_at = self.filter.last.t + cfg.lost_after
+            stop_sent = self.stop_robot(log, "mocap lost")
+            return TrialResult("mocap_lost", f"no pose for {self.filter.age(now):.2f} s", state.decisions,
+                               latencies_ms=state.latencies, stop_latency=stop_sent - lost_at)
+        if now - self.agent.last_request_at >= cfg.telemetry_every:
+            self.agent.request_telemetry()
+        for body in self.agent.poll():
+            if log is not None:
+                log.write("/telemetry", body)
+        if self.agent.silent_for(now) > cfg.agent_timeout:
+            stop_sent = self.stop_robot(log, "agent not answering")
+            return TrialResult("agent_lost", f"no telemetry from the agent for {self.agent.silent_for(now):.1f} s",
+                               state.decisions, latencies_ms=state.latencies,
+                               stop_latency=stop_sent - (self.agent.last_telemetry_at + cfg.agent_timeout))
+        return None
