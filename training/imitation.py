@@ -256,3 +256,84 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     config.total_steps = max(steps, 1)
     (run_dir / "config.json").write_text(config.to_json())
     return run_dir / "latest.zip"
+
+
+def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int, workers: int,
+           on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
+    """DAgger toward ``goto`` with a clairvoyant search over the last ``horizon`` steps
+    (:mod:`tumblebot.training.lookahead`), from the imitation run ``source``: its weights,
+    and its goto-labelled states before that window (the teacher is goto there too). The
+    student drives every iteration; returns the new run's checkpoint."""
+    from stable_baselines3 import PPO
+
+    from tumblebot.sim.policy import LAYOUTS
+    from tumblebot.training.export import export_onnx, write_card
+    from tumblebot.training.lookahead import WorkerSpec, run_episodes
+
+    config = TrainConfig.load(source / "config.json")
+    if not 1 <= horizon <= EPISODE_STEPS:
+        raise TrainingError(f"--lookahead {horizon} must be 1–{EPISODE_STEPS} steps")
+    if not (source / "dagger.npz").is_file():
+        raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
+    config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps
+    _new_run(config, imitation, run_dir)
+    torch.set_num_threads(1)
+    model = PPO.load(source / "latest.zip", device="cpu")
+    old = np.load(source / "dagger.npz")
+    before = old["inputs"][:, LAYOUTS["context"].index("steps_left")] > horizon / EPISODE_STEPS + 1e-6
+    data = [(old["inputs"][before], old["labels"][before], old["returns"][before])]
+    spec = WorkerSpec(config.task, config.tumbling_designs_only, config.motor_model, config.stall_torque,
+                      config.state_weight, config.progress_weight, horizon)
+    optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
+    stop = StopRequest()
+    previous = signal.signal(signal.SIGINT, stop), signal.signal(signal.SIGTERM, stop)
+    start, steps = time.monotonic(), 0
+    logs = _RunLogs(run_dir)
+    try:
+        for iteration in range(imitation.iterations):
+            student = run_dir / "student.onnx"
+            export_onnx(model, student)
+            write_card(student, config.task, steps, config)
+            seeds = [int(np.random.SeedSequence([config.seed, 7919, iteration, i]).generate_state(1)[0])
+                     for i in range(imitation.episodes)]
+            records = []
+            with tqdm(total=len(seeds), unit="ep", dynamic_ncols=True, mininterval=2.0,
+                      desc=f"DAgger+lookahead {iteration}/{imitation.iterations - 1}") as bar:
+                for record in run_episodes(spec, student, seeds, workers, lambda: stop.signum is not None):
+                    records.append(record)
+                    bar.update(1)
+            if stop.signum is not None:
+                raise KeyboardInterrupt
+            returns = []
+            for record in records:
+                g, out = 0.0, []
+                for r in record.rewards[::-1]:
+                    g = float(r) + config.gamma * g
+                    out.append(g)
+                returns.append(np.asarray(out[::-1], dtype=np.float32))
+            data.append((np.concatenate([r.inputs for r in records]), np.concatenate([r.labels for r in records]),
+                         np.concatenate(returns)))
+            steps += sum(len(r.labels) for r in records)
+            inputs, labels, values = (np.concatenate([d[k] for d in data]) for k in range(3))
+            np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=values)
+            loss = fit(model, optimiser, inputs, labels, values, imitation, config.seed + iteration, stop)
+            agreement = sum(r.agreed for r in records) / max(sum(len(r.labels) for r in records), 1)
+            final = [r.final_R for r in records]
+            batch = Batch(inputs[:0], labels[:0], values[:0], agreement, final,
+                          [float(np.sum(r.rewards)) for r in records])
+            summary = IterationSummary(iteration, "student", len(records), len(labels), agreement,
+                                       float(np.mean(final)), loss, time.monotonic() - start)
+            logs.record(summary, batch, steps)
+            model.num_timesteps = steps
+            save_checkpoint(model, run_dir)
+            if on_iteration is not None:
+                on_iteration(summary)
+    except KeyboardInterrupt:
+        raise TrainingInterrupted(steps, run_dir) from None
+    finally:
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
+        logs.close()
+    config.total_steps = max(steps, 1)
+    (run_dir / "config.json").write_text(config.to_json())
+    return run_dir / "latest.zip"

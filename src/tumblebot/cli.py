@@ -178,6 +178,9 @@ def _imitate(args: argparse.Namespace) -> int:
     from tumblebot.sim.goto import check_navigation_task
     from tumblebot.training.ppo import TrainingInterrupted
 
+    if args.refine is not None:
+        return _refine(args)
+
     task = check_navigation_task(args.task)
     from tumblebot.training.config import TrainConfig
     from tumblebot.training.imitation import ImitationConfig, imitate
@@ -197,6 +200,25 @@ def _imitate(args: argparse.Namespace) -> int:
               "(imitation does not resume: start a new run folder)", file=sys.stderr)
         return 130
     print(f"finished: {final}; fine-tune it with: tumblebot train --task {task} --init-from {final}")
+    return 0
+
+
+def _refine(args: argparse.Namespace) -> int:
+    from tumblebot.training.imitation import ImitationConfig, refine
+    from tumblebot.training.ppo import TrainingInterrupted
+
+    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
+    workers = args.envs if args.envs is not None else (os.cpu_count() or 1)
+    print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead: {settings.iterations} "
+          f"iterations of {settings.episodes} episodes, {workers} workers, in {args.run_dir}")
+    try:
+        final = refine(args.refine, args.run_dir, settings, args.lookahead, workers,
+                       on_iteration=lambda summary: print(summary.describe(), flush=True))
+    except TrainingInterrupted as stopped:
+        print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration",
+              file=sys.stderr)
+        return 130
+    print(f"finished: {final}")
     return 0
 
 
@@ -619,6 +641,11 @@ def _add_imitate_command(sub: Subcommands) -> None:
     p.add_argument("--motor-model", choices=("dc", "velocity"), default=None, help="servo model (default dc)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
                    help="servo stall torque (default 0.582)")
+    p.add_argument("--refine", type=Path, default=None, metavar="RUN",
+                   help="continue from the imitation run RUN toward a privileged teacher: goto, with a clairvoyant "
+                        "search over the episode's last --lookahead steps (every action tried from a snapshot, "
+                        "then goto to the end); the student drives every iteration, --envs worker processes")
+    p.add_argument("--lookahead", type=_positive_int, default=4, help="steps the search labels (default 4)")
     p.set_defaults(func=_imitate)
 
 

@@ -7,8 +7,10 @@ and runs in evaluation and the host like any other policy.
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -231,3 +233,51 @@ def test_that_a_study_records_that_it_used_the_thesis_observation_policies(tmp_p
     assert config is not None and config.controller == "thesis-policy"
     assert main(["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "1", "--batch", "2",
                  "--storage", db, "--study", "t", "--gait", "goto", "--thesis-policies", "--quiet"]) == 2
+
+
+def test_that_refining_toward_the_lookahead_teacher_keeps_goto_labels_before_the_window(
+        tiny_dagger: Path, tmp_path: Path) -> None:
+    run = tmp_path / "refined"
+    assert main(["imitate", "--refine", str(tiny_dagger), "--run-dir", str(run), "--iterations", "1",
+                 "--episodes", "2", "--updates", "5", "--envs", "1", "--lookahead", "3"]) == 0
+    config = TrainConfig.load(run / "config.json")
+    assert config.init_from == str(tiny_dagger / "latest.zip") and config.observation == "context"
+    data = np.load(run / "dagger.npz")
+    old = np.load(tiny_dagger / "dagger.npz")
+    steps_left = LAYOUTS["context"].index("steps_left")
+    kept = int(np.sum(old["inputs"][:, steps_left] > 3 / 20 + 1e-6))
+    assert len(data["labels"]) == kept + 2 * 20  # the old states before the window, and two new episodes
+    assert (run / "latest.zip").is_file() and (run / "student.onnx").is_file()
+
+
+def _final_after(env: TumblerEnv, snap: Any, goto: GotoController, obs: np.ndarray, first: tuple[int, int]) -> float:
+    """Final R from ``snap`` (step 17) when ``first`` is taken, then goto to the end."""
+    env.restore(snap)
+    follower = copy.deepcopy(goto)
+    follower.act(obs, 17)
+    follower.taken(first)
+    o, *_ = env.step(np.array(first))
+    info: dict[str, Any] = {}
+    for step in (18, 19):
+        o, _, _, _, info = env.step(np.array(follower.act(o, step)))
+    return float(info["final_R"])
+
+
+def test_that_the_lookahead_search_never_picks_an_action_worse_than_gotos() -> None:
+    from tumblebot.training.lookahead import _search
+
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    try:
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            goto = GotoController()
+            for step in range(17):  # goto drives to the last three steps
+                obs, *_ = env.step(np.array(goto.act(obs, step)))
+            snap = env.snapshot()
+            chosen = _search(env, goto, obs, 17)
+            plain = copy.deepcopy(goto).act(obs, 17)
+            # the same future (the snapshot holds the noise to come): the search is at least goto
+            assert _final_after(env, snap, goto, obs, chosen) >= _final_after(env, snap, goto, obs, plain) - 1e-9
+            env.release(snap)
+    finally:
+        env.close()

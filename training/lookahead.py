@@ -1,0 +1,145 @@
+"""A privileged teacher for imitation: ``goto``, with a clairvoyant search over its last steps.
+
+``goto`` stops within half a step of the goal and never uses the four actions that hold
+one leg; on the thesis's ξ = 3 robot that leaves it about 0.12 short of a perfect final
+R. In the last ``horizon`` steps of an episode this teacher tries every one of the nine
+actions from a snapshot of the simulation (:meth:`TumblerEnv.snapshot`), follows each
+with ``goto`` to the end, and labels the state with the action whose episode ended best.
+The snapshot holds the motor noise and latency still to come, so the teacher sees a
+future no policy can see ("learning by cheating"): the student, which sees only its
+observation, learns the action that is best on average in states like it. Earlier steps
+are labelled by ``goto`` itself.
+
+Episodes run in worker processes (each with its own environment, the student as an ONNX
+file exported by the caller, and the teacher), since the search needs an environment of
+its own that a vectorised one cannot lend.
+"""
+
+from __future__ import annotations
+
+import copy
+import multiprocessing
+import signal
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.goto import GotoController
+
+ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One episode: the student's inputs, the teacher's labels, the shaped rewards."""
+
+    inputs: np.ndarray
+    labels: np.ndarray
+    rewards: np.ndarray
+    final_R: float
+    agreed: int  #: steps where the student's action was the label
+    searched: int  #: steps labelled by the search (the rest by goto)
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """What a worker needs to build its environment, student and teacher (picklable)."""
+
+    task: str
+    tumbling_designs_only: bool
+    motor_model: str
+    stall_torque: float
+    state_weight: float
+    progress_weight: float
+    horizon: int  #: the last steps labelled by the search
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(spec: WorkerSpec, student: str | None) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and closes the pool
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.policy import OnnxPolicy
+    from tumblebot.sim.randomization import Randomization
+
+    _WORKER["env"] = TumblerEnv(task=spec.task, randomization=Randomization(
+        tumbling_designs_only=spec.tumbling_designs_only), motor_model=spec.motor_model,  # type: ignore[arg-type]
+        stall_torque=spec.stall_torque, state_weight=spec.state_weight, progress_weight=spec.progress_weight)
+    _WORKER["student"] = OnnxPolicy(Path(student)) if student else None
+    _WORKER["spec"] = spec
+
+
+def _finish(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> float:
+    info: dict[str, Any] = {}
+    while step < env.episode_steps:
+        obs, _, _, _, info = env.step(np.array(goto.act(obs, step)))
+        step += 1
+    return float(info["final_R"])
+
+
+def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> tuple[int, int]:
+    """The action whose episode, continued by ``goto``, ends with the best final R."""
+    snap = env.snapshot()
+    best, best_action = -np.inf, ALL_ACTIONS[4]
+    try:
+        for action in ALL_ACTIONS:
+            env.restore(snap)
+            follower = copy.deepcopy(goto)
+            follower.act(obs, step)
+            follower.taken(action)
+            after, _, _, _, info = env.step(np.array(action))
+            final = float(info["final_R"]) if step + 1 >= env.episode_steps else _finish(env, follower, after, step + 1)
+            if final > best:
+                best, best_action = final, action
+        env.restore(snap)
+    finally:
+        env.release(snap)
+    return best_action
+
+
+def _episode(seed: int) -> EpisodeRecord:
+    env, student, spec = _WORKER["env"], _WORKER["student"], _WORKER["spec"]
+    obs, _ = env.reset(seed=seed)
+    goto = GotoController()
+    if student is not None:
+        student.reset(env.design.as_tuple())
+    inputs, labels, rewards = [], [], []
+    agreed = searched = 0
+    info: dict[str, Any] = {}
+    for step in range(env.episode_steps):
+        x = student.context(obs) if student is not None else None  # the student's input, built as when deployed
+        if step >= env.episode_steps - spec.horizon:
+            label = _search(env, goto, obs, step)
+            goto.act(obs, step)
+            searched += 1
+        else:
+            label = goto.act(obs, step)
+        action = label
+        if x is not None:
+            inputs.append(x)
+            chosen = student.act_batch(x[None])[0]
+            action = (int(chosen[0]), int(chosen[1]))
+            agreed += int(action == label)
+        goto.taken(action)
+        labels.append(label)
+        obs, reward, _, _, info = env.step(np.array(action))
+        rewards.append(reward)
+    return EpisodeRecord(np.asarray(inputs, dtype=np.float32), np.asarray(labels, dtype=np.int64),
+                         np.asarray(rewards, dtype=np.float64), float(info["final_R"]), agreed, searched)
+
+
+def run_episodes(spec: WorkerSpec, student: Path, seeds: list[int], workers: int,
+                 should_stop: Callable[[], bool]) -> Iterator[EpisodeRecord]:
+    """The episodes of ``seeds``, driven by ``student`` and labelled by the teacher, as
+    they finish (in any order); stops early when ``should_stop()``."""
+    context = multiprocessing.get_context("forkserver")
+    with context.Pool(workers, initializer=_init_worker, initargs=(spec, str(student))) as pool:
+        for record in pool.imap_unordered(_episode, seeds):
+            yield record
+            if should_stop():
+                pool.terminate()
+                return
