@@ -13,7 +13,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeAlias
 
@@ -361,25 +361,18 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _optimize(args: argparse.Namespace) -> int:
-    import dataclasses
+def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, Any], Any, str, str]:
+    """``optimize``'s arguments checked, before any study is opened or written: the
+    objective, recipe, servo, controllers, study config, study name and storage URL."""
     import os
 
     from tumblebot.sim.optimize import (
         DEFAULT_STORAGE,
         Objective,
         OptimizeError,
-        Progress,
         Recipe,
-        StopFlag,
-        StopRequested,
         StudyConfig,
-        format_best,
         format_xi,
-        load_config,
-        open_storage,
-        open_study,
-        optimize,
         parse_tasks,
         parse_xi,
         study_controllers,
@@ -407,6 +400,40 @@ def _optimize(args: argparse.Namespace) -> int:
                             controller=controller, servo=servo)
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
+    return objective, recipe, servo, controllers, config, name, storage_url
+
+
+def _optimize_bar(trials: int, quiet: bool) -> tuple[Any, Callable[[Any], None]]:
+    """The optimiser's progress bar and the callback that moves it (best design so far)."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=trials, unit="trial", desc="optimize", disable=quiet, mininterval=0.5)
+
+    def show(p: Any) -> None:
+        bar.n = min(p.done, trials)
+        if p.best is not None:
+            x, y, z, leg = p.best.design
+            bar.set_postfix_str(f"best {p.best.value:.4g} at x={x:.3f} y={y:.3f} z={z:.3f} l={leg:.3f}")
+        bar.refresh()
+
+    return bar, show
+
+
+def _optimize(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from tumblebot.sim.optimize import (
+        StopFlag,
+        StopRequested,
+        format_best,
+        load_config,
+        open_storage,
+        open_study,
+        optimize,
+    )
+    from tumblebot.sim.runner import EpisodeRunner
+
+    objective, recipe, servo, controllers, config, name, storage_url = _optimize_plan(args)
     stop = StopFlag()
     with stop.installed():  # from here on Ctrl-C only asks; the work stops at its next safe point
         study = open_study(open_storage(storage_url, writable=True), name, config)
@@ -417,20 +444,7 @@ def _optimize(args: argparse.Namespace) -> int:
               f"({recipe.trials} trials, {recipe.startup} random then GP-logEI, batch {recipe.batch}"
               + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
               file=sys.stderr)
-
-        from tqdm import tqdm
-
-        bar = tqdm(total=recipe.trials, unit="trial", desc="optimize", disable=args.quiet, mininterval=0.5)
-
-        def show(p: Progress) -> None:
-            bar.n = min(p.done, recipe.trials)
-            if p.best is not None:
-                x, y, z, l = p.best.design  # noqa: E741
-                bar.set_postfix_str(f"best {p.best.value:.4g} at x={x:.3f} y={y:.3f} z={z:.3f} l={l:.3f}")
-            bar.refresh()
-
-        from tumblebot.sim.runner import EpisodeRunner
-
+        bar, show = _optimize_bar(recipe.trials, args.quiet)
         runner = None
         try:
             runner = EpisodeRunner(controllers, workers=args.workers, servo=servo) if objective.tasks else None
