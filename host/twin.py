@@ -74,13 +74,8 @@ def pulse_to_command(width: float | None, mounting: float) -> float:
     return max(-1.0, min(1.0, mounting * offset / FULL_SPEED_US))
 
 
-def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
-              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None) -> int:
-    """The world process: real-time physics, mocap out, servo pulses in. Runs until
-    SIGTERM/SIGINT or a ``quit`` control datagram."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
-
+def _start_emulator(serial_link: Path) -> Any:
+    """The firmware in simavr, paced in real time, with ``serial_link`` pointing at its pty."""
     emulator = _emulator()
     try:
         emulator.build()
@@ -91,13 +86,70 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     if serial_link.is_symlink() or serial_link.exists():
         serial_link.unlink()
     serial_link.symlink_to(uno.pty)
+    return uno
+
+
+class _World:
+    """The world's state between control datagrams and physics substeps."""
+
+    def __init__(self, env: Any, uno: Any, pose_to: tuple[str, int], body: str, pose_rate: float) -> None:
+        self.env, self.uno, self.pose_to, self.body = env, uno, pose_to, body
+        self.out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.dt = 1.0 / env.physics_hz
+        self.pose_every = max(1, round(env.physics_hz / pose_rate))
+        self.placed = False
+        self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
+        self.seq, self.sim_time, self.substeps = 0, 0.0, 0
+        self.wall0 = time.monotonic()
+
+    def control(self, ctl: socket.socket, seed: int) -> bool:
+        """Answer one control datagram; True on ``quit``."""
+        data, source = ctl.recvfrom(4096)
+        reply = _control(self.env, data, seed, self.uno, self.publish)
+        if reply.pop("placed", False):
+            self.placed, self.wall0, self.substeps, self.sim_time = True, time.monotonic(), 0, 0.0
+        quit_now = bool(reply.pop("quit", False))
+        ctl.sendto(json.dumps(reply).encode(), source)
+        return quit_now
+
+    def catch_up(self) -> bool:
+        """Simulate the substeps real time has made due (at most 24 at once: if the host
+        stalls, do not race to catch up), under the servo pulses on the pins now,
+        publishing mocap poses on the way. False when none was due."""
+        due = int((time.monotonic() - self.wall0) / self.dt)
+        if due <= self.substeps:
+            return False
+        right_us, left_us = self.uno.widths()
+        self.env.set_leg_commands(pulse_to_command(right_us, MOUNTING["right"]),
+                                  pulse_to_command(left_us, MOUNTING["left"]))
+        for _ in range(min(due - self.substeps, 24)):
+            self.env.advance(1)
+            self.substeps += 1
+            self.sim_time += self.dt
+            if self.substeps % self.pose_every == 0 and self.publish["on"]:
+                position, quaternion = self.env.base_pose()
+                self.seq += 1
+                self.out.sendto(encode_pose_datagram(self.body, self.seq, self.sim_time, position, quaternion),
+                                self.pose_to)
+        self.substeps = max(self.substeps, due - 24)
+        return True
+
+
+def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
+              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None) -> int:
+    """The world process: real-time physics, mocap out, servo pulses in. Runs until
+    SIGTERM/SIGINT or a ``quit`` control datagram."""
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.randomization import Randomization
+
+    uno = _start_emulator(serial_link)
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
     env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
                      **(servo or Servo()).as_dict())
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
-    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    world = _World(env, uno, pose_to, body, pose_rate)
     stop = {"now": False}
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -106,49 +158,20 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     print(f"@ready pty={uno.pty} control={control[0]}:{control[1]}", flush=True)
-    dt = 1.0 / env.physics_hz
-    pose_every = max(1, round(env.physics_hz / pose_rate))
-    placed = False
-    publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
-    seq = 0
-    sim_time = 0.0
-    wall0 = time.monotonic()
-    substeps = 0
     try:
         while not stop["now"]:
             readable, _, _ = select.select([ctl], [], [], 0.0)
-            if readable:
-                data, source = ctl.recvfrom(4096)
-                reply = _control(env, data, seed, uno, publish)
-                if reply.pop("placed", False):
-                    placed, wall0, substeps, sim_time = True, time.monotonic(), 0, 0.0
-                if reply.pop("quit", False):
-                    stop["now"] = True
-                ctl.sendto(json.dumps(reply).encode(), source)
-            if not placed:
+            if readable and world.control(ctl, seed):
+                stop["now"] = True
+            if not world.placed:
                 time.sleep(0.005)
-                continue
-            due = int((time.monotonic() - wall0) / dt)
-            if due <= substeps:
+            elif not world.catch_up():
                 time.sleep(0.0005)
-                continue
-            right_us, left_us = uno.widths()
-            env.set_leg_commands(pulse_to_command(right_us, MOUNTING["right"]),
-                                 pulse_to_command(left_us, MOUNTING["left"]))
-            for _ in range(min(due - substeps, 24)):  # if the host stalls, do not race to catch up
-                env.advance(1)
-                substeps += 1
-                sim_time += dt
-                if substeps % pose_every == 0 and publish["on"]:
-                    position, quaternion = env.base_pose()
-                    seq += 1
-                    out.sendto(encode_pose_datagram(body, seq, sim_time, position, quaternion), pose_to)
-            substeps = max(substeps, due - 24)
     finally:
         env.close()
         uno.close()
         ctl.close()
-        out.close()
+        world.out.close()
         if serial_link.is_symlink():
             serial_link.unlink()
     return 0

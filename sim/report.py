@@ -370,20 +370,8 @@ def _slices(ev: _Evaluator, reference: StudyResult, points: int) -> dict[str, An
 
 
 # ------------------------------------------------------------------------------- plots
-def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str, Any], out: Path) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files: dict[str, str] = {}
-
-    def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
-        files[name.removesuffix(".png")] = name
-
+def _plot_objective_vs_trial(plt: Any, results: list[StudyResult]) -> Any:
+    """Each study's objective per trial: screening values, promoted trials, the best full-batch value."""
     fig, axes = plt.subplots(len(results), 1, figsize=(7, 2.6 * len(results)), squeeze=False)
     for ax, r in zip(axes[:, 0], results, strict=True):
         screened = r.config.screen_batch < r.config.batch
@@ -406,7 +394,11 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
         ax.set_xlabel("trial")
         ax.set_ylabel("objective")
         ax.legend(fontsize=7, loc="lower right")
-    save(fig, "objective_vs_trial.png")
+    return fig
+
+
+def _plot_best_design_vs_trial(plt: Any, results: list[StudyResult]) -> Any:
+    """Each study's best design so far, per trial."""
 
     fig, axes = plt.subplots(len(results), 1, figsize=(7, 2.4 * len(results)), squeeze=False)
     for ax, r in zip(axes[:, 0], results, strict=True):
@@ -423,7 +415,11 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
         ax.set_xlabel("trial")
         ax.set_ylabel("m")
         ax.legend(fontsize=7, ncol=4)
-    save(fig, "best_design_vs_trial.png")
+    return fig
+
+
+def _plot_slices(plt: Any, reference: StudyResult, slices: dict[str, Any]) -> Any:
+    """One-parameter slices through the optimum, with 95 % intervals."""
 
     fig, axes = plt.subplots(1, 4, figsize=(12, 3), sharey=True)
     for ax, p in zip(axes, PARAMETERS, strict=True):
@@ -441,7 +437,11 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
         ax.set_xlabel(f"{p} (m)")
     axes[0].set_ylabel(f"objective ({reference.name})")
     fig.suptitle("one-parameter slices through the optimum (95 % CI; grey: cannot tumble)", fontsize=9)
-    save(fig, "slices.png")
+    return fig
+
+
+def _plot_energy(plt: Any, reference: StudyResult) -> Any:
+    """e(w) over two planes through the optimum."""
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     assert reference.best is not None
@@ -454,8 +454,27 @@ def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str,
     E2 = np.array([[energy_per_metre(Design(x, by, bz, l)) for x in gx] for l in gl])  # noqa: E741
     _heat(axes[1], gx, gl, E2, "x (m)", "l (m)", f"e(w) at y={by:.3f}, z={bz:.3f}")
     axes[1].plot(bx, bl, "r*", ms=12)
-    save(fig, "energy.png")
-    return files
+    return fig
+
+
+def _plots(results: list[StudyResult], reference: StudyResult, slices: dict[str, Any], out: Path) -> dict[str, str]:
+    """Draw the report's figures into ``out``; returns name → file."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures = {
+        "objective_vs_trial": _plot_objective_vs_trial(plt, results),
+        "best_design_vs_trial": _plot_best_design_vs_trial(plt, results),
+        "slices": _plot_slices(plt, reference, slices),
+        "energy": _plot_energy(plt, reference),
+    }
+    for name, fig in figures.items():
+        fig.tight_layout()
+        fig.savefig(out / f"{name}.png", dpi=110)
+        plt.close(fig)
+    return {name: f"{name}.png" for name in figures}
 
 
 def _heat(ax: Any, xs: np.ndarray, ys: np.ndarray, E: np.ndarray, xl: str, yl: str, title: str) -> None:

@@ -258,6 +258,44 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     return run_dir / "latest.zip"
 
 
+def _discounted(rewards: np.ndarray, gamma: float) -> np.ndarray:
+    """The discounted return from every step of an episode on."""
+    out, g = np.empty(len(rewards), dtype=np.float32), 0.0
+    for k in range(len(rewards) - 1, -1, -1):
+        g = float(rewards[k]) + gamma * g
+        out[k] = g
+    return out
+
+
+def _lookahead_episodes(spec: Any, student: Path, seed: int, iteration: int, imitation: ImitationConfig,
+                        workers: int, stop: StopRequest) -> list[Any]:
+    """One refine iteration's episodes (their seeds drawn from ``seed`` and ``iteration``)."""
+    from tumblebot.training.lookahead import run_episodes
+
+    seeds = [int(np.random.SeedSequence([seed, 7919, iteration, i]).generate_state(1)[0])
+             for i in range(imitation.episodes)]
+    records = []
+    with tqdm(total=len(seeds), unit="ep", dynamic_ncols=True, mininterval=2.0,
+              desc=f"DAgger+lookahead {iteration}/{imitation.iterations - 1}") as bar:
+        for record in run_episodes(spec, student, seeds, workers, lambda: stop.signum is not None):
+            records.append(record)
+            bar.update(1)
+    if stop.signum is not None:
+        raise KeyboardInterrupt
+    return records
+
+
+def _summarise(records: list[Any], iteration: int, dataset: int, loss: float, wall: float
+               ) -> tuple[IterationSummary, Batch]:
+    """A refine iteration's summary, and its episodes as a :class:`Batch` for the logs."""
+    agreement = sum(r.agreed for r in records) / max(sum(len(r.labels) for r in records), 1)
+    final = [r.final_R for r in records]
+    empty = np.zeros((0,), dtype=np.float32)
+    batch = Batch(empty, empty, empty, agreement, final, [float(np.sum(r.rewards)) for r in records])
+    return IterationSummary(iteration, "student", len(records), dataset, agreement, float(np.mean(final)), loss,
+                            wall), batch
+
+
 def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int, workers: int,
            on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
     """DAgger toward ``goto`` with a clairvoyant search over the last ``horizon`` steps
@@ -268,7 +306,7 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
 
     from tumblebot.sim.policy import LAYOUTS
     from tumblebot.training.export import export_onnx, write_card
-    from tumblebot.training.lookahead import WorkerSpec, run_episodes
+    from tumblebot.training.lookahead import WorkerSpec
 
     config = TrainConfig.load(source / "config.json")
     if not 1 <= horizon <= EPISODE_STEPS:
@@ -294,35 +332,15 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
             student = run_dir / "student.onnx"
             export_onnx(model, student)
             write_card(student, config.task, steps, config)
-            seeds = [int(np.random.SeedSequence([config.seed, 7919, iteration, i]).generate_state(1)[0])
-                     for i in range(imitation.episodes)]
-            records = []
-            with tqdm(total=len(seeds), unit="ep", dynamic_ncols=True, mininterval=2.0,
-                      desc=f"DAgger+lookahead {iteration}/{imitation.iterations - 1}") as bar:
-                for record in run_episodes(spec, student, seeds, workers, lambda: stop.signum is not None):
-                    records.append(record)
-                    bar.update(1)
-            if stop.signum is not None:
-                raise KeyboardInterrupt
-            returns = []
-            for record in records:
-                g, out = 0.0, []
-                for r in record.rewards[::-1]:
-                    g = float(r) + config.gamma * g
-                    out.append(g)
-                returns.append(np.asarray(out[::-1], dtype=np.float32))
+            records = _lookahead_episodes(spec, student, config.seed, iteration, imitation, workers, stop)
+            returns = [_discounted(record.rewards, config.gamma) for record in records]
             data.append((np.concatenate([r.inputs for r in records]), np.concatenate([r.labels for r in records]),
                          np.concatenate(returns)))
             steps += sum(len(r.labels) for r in records)
             inputs, labels, values = (np.concatenate([d[k] for d in data]) for k in range(3))
             np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=values)
             loss = fit(model, optimiser, inputs, labels, values, imitation, config.seed + iteration, stop)
-            agreement = sum(r.agreed for r in records) / max(sum(len(r.labels) for r in records), 1)
-            final = [r.final_R for r in records]
-            batch = Batch(inputs[:0], labels[:0], values[:0], agreement, final,
-                          [float(np.sum(r.rewards)) for r in records])
-            summary = IterationSummary(iteration, "student", len(records), len(labels), agreement,
-                                       float(np.mean(final)), loss, time.monotonic() - start)
+            summary, batch = _summarise(records, iteration, len(labels), loss, time.monotonic() - start)
             logs.record(summary, batch, steps)
             model.num_timesteps = steps
             save_checkpoint(model, run_dir)
