@@ -20,6 +20,10 @@ from typing import Any, TypeAlias
 from tumblebot.defaults import MAX_STALL_TORQUE, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
+#: The tasks, for help texts (tumblebot.sim.tasks.TASKS is the source, and a test keeps the two
+#: equal; importing tumblebot.sim here would pull gymnasium and numpy into building the parser).
+TASK_NAMES: tuple[str, ...] = ("nav-flat", "nav-terrain", "distance-flat", "incline")
+TASK_CHOICES = ", ".join(TASK_NAMES[:-1]) + " or " + TASK_NAMES[-1]
 Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"  #: what build_parser's helpers add to
 
 
@@ -592,7 +596,7 @@ def _add_sim_command(sub: Subcommands) -> None:
     p = sub.add_parser("sim", help="run one episode with a scripted gait (optionally as a GIF)",
                        description="Run one 20-step episode of a task with a fixed gait and print "
                                    "the trajectory and the final-state reward R.")
-    p.add_argument("--task", default="nav-flat", help="nav-flat, nav-terrain, distance-flat or incline")
+    p.add_argument("--task", default="nav-flat", help=TASK_CHOICES)
     p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--gait", default="forward",
                    help="forward, reverse, alternate, pulse, spin, stop, random, or goto (the closed-loop "
@@ -612,7 +616,7 @@ def _add_train_command(sub: Subcommands) -> None:
                        description="Train a PPO policy with domain randomisation over the design bounds. "
                                    "A run folder holds config.json, checkpoints, episodes.csv, TensorBoard "
                                    "logs and learning_curve.png; a stopped run continues with --resume.")
-    p.add_argument("--task", default="nav-flat", help="nav-flat, nav-terrain, distance-flat or incline")
+    p.add_argument("--task", default="nav-flat", help=TASK_CHOICES)
     p.add_argument("--steps", type=_positive_int, default=None, help="total environment steps (default 2000000)")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=int, default=None, help="seed (default 0)")
@@ -696,7 +700,7 @@ def _add_evaluate_command(sub: Subcommands) -> None:
                        description="Run N episodes of a task on one design with the bundled ONNX policy "
                                    "(or --policy / --gait). Episode i with seed S is the same whatever "
                                    "--workers is, and the same draws are used for every design.")
-    p.add_argument("--task", required=True, help="nav-flat, nav-terrain, distance-flat or incline")
+    p.add_argument("--task", required=True, help=TASK_CHOICES)
     p.add_argument("--design", required=True, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--episodes", type=int, default=240, help="number of episodes (default 240)")
     p.add_argument("--seed", type=_seed, default=0, help="evaluation seed")

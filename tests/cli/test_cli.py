@@ -124,3 +124,10 @@ def test_that_the_main_job_prints_the_optimum_the_readme_quotes(tmp_path: Path) 
     printed = [ln.strip() for ln in run.stdout.splitlines()
                if ln.startswith(("best robot", "  x =", "  e(w)", "  nav-flat"))]
     assert printed == quoted and len(quoted) == 4, (printed, quoted)
+
+
+def test_that_the_help_texts_name_every_task_and_no_other() -> None:
+    from tumblebot.cli import TASK_NAMES
+    from tumblebot.sim.tasks import TASKS
+
+    assert TASK_NAMES == tuple(TASKS)
