@@ -130,4 +130,4 @@ def test_that_the_help_texts_name_every_task_and_no_other() -> None:
     from tumblebot.cli import TASK_NAMES
     from tumblebot.sim.tasks import TASKS
 
-    assert TASK_NAMES == tuple(TASKS)
+    assert tuple(TASKS) == TASK_NAMES
