@@ -5,6 +5,7 @@ navigation tasks also against the ``goto`` controller, paired on the same episod
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -102,18 +103,54 @@ def _welch(a: EvalResult, b: EvalResult) -> float:
     return float(stats.ttest_ind(a.R, b.R, equal_var=False, alternative="greater").pvalue)
 
 
-def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: int) -> dict[str, Any]:
+def _welch_from_summary(a: EvalResult, b: dict[str, Any], n: int) -> float:
+    """:func:`_welch` against a recorded baseline (mean and 95 % t interval of ``n`` episodes)."""
+    half = (b["ci95"][1] - b["ci95"][0]) / 2
+    sd = half * math.sqrt(n) / float(stats.t.ppf(0.975, n - 1))
+    return float(stats.ttest_ind_from_stats(a.mean_R, float(np.std(a.R, ddof=1)), a.episodes, b["mean_R"], sd, n,
+                                            equal_var=False, alternative="greater").pvalue)
+
+
+def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Design, task: str, episodes: int,
+                        seed: int, workers: int) -> dict[str, Any] | None:
+    """A previous card's gait baselines for ``label``, if they are for the same design,
+    episodes and seed and still reproduce: the gaits do not depend on the policy, so the
+    same episodes give the same numbers. Checked by re-running its best fixed gait, which
+    must give the recorded mean exactly; else None (everything is re-run)."""
+    if previous is None or previous.get("episodes_per_design") != episodes or previous.get("seed") != seed:
+        return None
+    entry = previous.get("designs", {}).get(label)
+    if not entry or entry.get("design") != design.as_dict() or "baselines" not in entry:
+        return None
+    best = entry["best_fixed_gait"]
+    check = evaluate(task, design, Controller("gait", best), episodes, seed, workers, progress=True)
+    if check.mean_R != entry["baselines"][best]["mean_R"]:
+        return None
+    return {"baselines": entry["baselines"], "best_fixed_gait": best}
+
+
+def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: int,
+                    previous: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The card's evaluation. ``previous``, an earlier card's ``evaluation`` for the same
+    task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`)."""
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
         pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
-        gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True)
-                 for g in [*FIXED_GAITS, "random"]}
-        best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
         entry = pol.summary()
-        entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
-        entry["best_fixed_gait"] = best_fixed
-        entry["p_vs_best_fixed_gait"] = _welch(pol, gaits[best_fixed])
-        entry["p_vs_random_policy"] = _welch(pol, gaits["random"])
+        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers)
+        if recorded is not None:
+            entry.update(recorded, baselines_reused_from_previous_card=True)
+            base = recorded["baselines"]
+            entry["p_vs_best_fixed_gait"] = _welch_from_summary(pol, base[recorded["best_fixed_gait"]], episodes)
+            entry["p_vs_random_policy"] = _welch_from_summary(pol, base["random"], episodes)
+        else:
+            gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True)
+                     for g in [*FIXED_GAITS, "random"]}
+            best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
+            entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
+            entry["best_fixed_gait"] = best_fixed
+            entry["p_vs_best_fixed_gait"] = _welch(pol, gaits[best_fixed])
+            entry["p_vs_random_policy"] = _welch(pol, gaits["random"])
         out["designs"][label] = entry
     if task in NAVIGATION_TASKS:
         # The grid on flat ground; on terrain (six times slower to simulate) the card's two designs.

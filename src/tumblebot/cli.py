@@ -276,6 +276,12 @@ def _export(args: argparse.Namespace) -> int:
 
     if args.output.suffix != ".onnx":
         raise TumblebotError(f"-o {args.output}: the output must end in .onnx")
+    previous = None
+    if args.baselines_from is not None:  # read before anything is written (it may be the card being replaced)
+        try:
+            previous = json.loads(args.baselines_from.read_text()).get("evaluation")
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError) as exc:
+            raise TumblebotError(f"--baselines-from {args.baselines_from}: not a readable model card ({exc})") from None
     model, config, checkpoint = load_run(args.run)
     if not args.task and config is None:
         raise TumblebotError(f"cannot tell the task of {checkpoint}: no config.json in its run folder; "
@@ -295,12 +301,10 @@ def _export(args: argparse.Namespace) -> int:
     write_card(args.output, task.name, int(model.num_timesteps), config, extra)
     print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
     if args.eval_episodes > 0:
-        import json
-
         from tumblebot.sim.policy import card_path
         from tumblebot.training.card_eval import card_evaluation
 
-        evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers)
+        evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous)
         card = json.loads(card_path(args.output).read_text())
         card["evaluation"] = evaluation
         card_path(args.output).write_text(json.dumps(card, indent=2) + "\n")
@@ -691,6 +695,9 @@ def _add_export_command(sub: Subcommands) -> None:
     p.add_argument("--seed", type=int, default=0, help="evaluation seed")
     p.add_argument("--workers", type=_positive_int, default=1, help="evaluation worker processes")
     p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits")
+    p.add_argument("--baselines-from", type=Path, default=None, metavar="CARD.json",
+                   help="reuse the gait baselines of an earlier card of the same task, episodes and seed (checked: "
+                        "its best fixed gait is re-run and must give the recorded mean exactly)")
     p.set_defaults(func=_export)
 
 
