@@ -281,3 +281,27 @@ def test_that_the_lookahead_search_never_picks_an_action_worse_than_gotos() -> N
             env.release(snap)
     finally:
         env.close()
+
+
+def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger: Path, tmp_path: Path) -> None:
+    first, second = tmp_path / "a" / "nav-flat.onnx", tmp_path / "b" / "nav-flat.onnx"
+    assert main(["export", str(tiny_dagger), "-o", str(first), "--eval-episodes", "2"]) == 0
+    card = json.loads(first.with_suffix(".json").read_text())
+    assert len(card["evaluation"]["against_goto"]["rows"]) == 12  # the grid, policy against goto
+    assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2",
+                 "--baselines-from", str(first.with_suffix(".json"))]) == 0
+    again = json.loads(second.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
+    assert again["baselines_reused_from_previous_card"] is True
+    assert again["baselines"] == card["evaluation"]["designs"]["xi3_robot"]["baselines"]
+    assert again["p_vs_best_fixed_gait"] == pytest.approx(card["evaluation"]["designs"]["xi3_robot"]
+                                                          ["p_vs_best_fixed_gait"], rel=1e-6, abs=1e-12)
+    stale = json.loads(first.with_suffix(".json").read_text())
+    best = stale["evaluation"]["designs"]["xi3_robot"]["best_fixed_gait"]
+    stale["evaluation"]["designs"]["xi3_robot"]["baselines"][best]["mean_R"] += 0.01  # no longer reproduces
+    (tmp_path / "stale.json").write_text(json.dumps(stale))
+    third = tmp_path / "c" / "nav-flat.onnx"
+    assert main(["export", str(tiny_dagger), "-o", str(third), "--eval-episodes", "2",
+                 "--baselines-from", str(tmp_path / "stale.json")]) == 0
+    rerun = json.loads(third.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
+    assert "baselines_reused_from_previous_card" not in rerun
+    assert rerun["baselines"] == card["evaluation"]["designs"]["xi3_robot"]["baselines"]
