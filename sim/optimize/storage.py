@@ -1,0 +1,164 @@
+"""Study storage: Optuna RDB storages with heartbeats, and what a study was created for."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+import weakref
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.evaluate import Servo
+from tumblebot.sim.optimize.objective import Objective, OptimizeError
+from tumblebot.sim.optimize.recipes import Recipe
+
+if TYPE_CHECKING:
+    import optuna
+
+
+#: Key of the study user attribute that records what a study optimises.
+STUDY_KEY = "tumblebot"
+PROMOTED_PREFIX = "promoted:"
+DEFAULT_STORAGE = "sqlite:///tumblebot-optuna.db"
+
+#: The storage each study was opened from (Optuna has no public accessor for it).
+_STORAGES: weakref.WeakKeyDictionary[optuna.Study, Any] = weakref.WeakKeyDictionary()
+
+
+def _storage_of(study: optuna.Study) -> Any:
+    storage = _STORAGES.get(study)
+    if storage is None:
+        raise OptimizeError("open studies with tumblebot.sim.optimize.open_study (it keeps the storage)")
+    return storage
+
+
+@dataclass
+class StudyConfig:
+    """What a study was created for, stored in its user attributes; a command that asks
+    for something else is refused before anything is written."""
+
+    weights: dict[str, float]
+    xi: float | str  # "inf" in JSON
+    variant: str
+    recipe: str
+    batch: int
+    screen_batch: int
+    startup: int
+    seed: int
+    policies: dict[str, str] = field(default_factory=dict)  # task → SHA-256 of the ONNX file
+    #: what drove the episodes: "policy" (each task's bundled ONNX policy), "thesis-policy"
+    #: (each task's bundled policy that sees only the thesis's 9-number observation), or a
+    #: gait name (``goto``, the closed-loop navigation controller, or a scripted gait).
+    #: Studies made before this field existed load as "policy".
+    controller: str = "policy"
+    motor_model: str = "dc"  #: the servo of every episode (SPEC: part of the objective)
+    stall_torque: float = STALL_TORQUE
+
+    @classmethod
+    def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
+           controller: str = "policy", servo: Servo | None = None) -> StudyConfig:
+        xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
+        servo = servo or Servo()
+        return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
+                   recipe.startup, seed, policies, controller, servo.model, servo.stall_torque)
+
+    def servo(self) -> Servo:
+        return Servo.of(self.motor_model, self.stall_torque)
+
+    def objective(self) -> Objective:
+        xi = math.inf if self.xi == "inf" else float(self.xi)
+        return Objective(dict(self.weights), xi, self.variant)  # type: ignore[arg-type]
+
+    def differences(self, other: StudyConfig) -> list[str]:
+        """What differs in the objective or its noise (``startup`` may change between runs)."""
+        mine, theirs = asdict(self), asdict(other)
+        return [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
+                for k in mine if k != "startup" and mine[k] != theirs[k]]
+
+
+# --------------------------------------------------------------------------- storage
+def open_storage(url: str, writable: bool = False, must_exist: bool = False) -> Any:
+    """An Optuna RDB storage for ``url`` (``sqlite:///file.db``, ``postgresql://…``), with
+    heartbeats so a trial whose process was killed is failed and not counted forever.
+
+    For SQLite files, checked before anything is opened: ``must_exist`` refuses a file
+    that is not there (a report never creates an empty database from a typo), and
+    ``writable`` refuses a file or folder this process cannot write (a study is written)."""
+    import optuna
+    from optuna.storages import RDBStorage
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if "://" not in url:
+        raise OptimizeError(f"--storage {url!r} is not a database URL (e.g. sqlite:///study.db, "
+                            "postgresql://user@host/db)")
+    if url.startswith("sqlite:///"):
+        path = Path(url[len("sqlite:///"):])
+        if str(path) and str(path) != ":memory:":
+            if not path.parent.exists():
+                raise OptimizeError(f"--storage {url!r}: folder {path.parent} does not exist")
+            if must_exist and not path.is_file():
+                raise OptimizeError(f"--storage {url!r}: there is no database file {path}")
+            if writable and path.exists() and not os.access(path, os.R_OK | os.W_OK):
+                raise OptimizeError(f"--storage {url!r}: the database file {path} is not writable by this user")
+            if writable and not os.access(path.parent, os.W_OK | os.X_OK):
+                raise OptimizeError(f"--storage {url!r}: folder {path.parent} is not writable (SQLite writes a "
+                                    "journal beside the database)")
+    engine_kwargs: dict[str, Any] = {}
+    if url.startswith("sqlite"):
+        engine_kwargs = {"connect_args": {"timeout": 60}}  # several processes share one file
+    for attempt in range(5):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=10, grace_period=60)
+        except Exception as exc:  # SQLAlchemy raises many types; all mean "cannot open"
+            text = str(exc)
+            # Workers started together on an empty database race to create the schema; the
+            # loser sees a duplicate-key (PostgreSQL) or UNIQUE-constraint (SQLite, on
+            # alembic_version) error and finds the tables on its next try.
+            if attempt < 4 and any(m in text for m in ("duplicate key", "already exists", "UNIQUE constraint")):
+                time.sleep(0.5 + attempt)
+                continue
+            first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
+            raise OptimizeError(f"--storage {url!r} cannot be opened: {first}") from None
+    raise AssertionError("unreachable")
+
+
+def load_config(study: optuna.Study) -> StudyConfig | None:
+    raw = study.user_attrs.get(STUDY_KEY)
+    return StudyConfig(**raw) if raw else None
+
+
+def load_study(storage: Any, name: str) -> optuna.Study:
+    import optuna
+
+    try:
+        return optuna.load_study(study_name=name, storage=storage)
+    except KeyError:
+        known = [s.study_name for s in optuna.get_all_study_summaries(storage, include_best_trial=False)]
+        raise OptimizeError(f"study {name!r} does not exist in this storage; studies: "
+                            f"{', '.join(known) or 'none'}") from None
+
+
+def open_study(storage: Any, name: str, config: StudyConfig) -> optuna.Study:
+    """Create the study, or load it after checking it was made for the same objective."""
+    import optuna
+
+    study = optuna.create_study(study_name=name, storage=storage, direction="maximize", load_if_exists=True)
+    _STORAGES[study] = storage
+    existing = load_config(study)
+    if existing is None:
+        if study.trials:
+            raise OptimizeError(f"study {name!r} exists but was not made by tumblebot optimize; "
+                                "choose another --study")
+        study.set_user_attr(STUDY_KEY, asdict(config))
+        return study
+    diff = existing.differences(config)
+    if diff:
+        raise OptimizeError(f"study {name!r} was created for a different objective; nothing was changed. "
+                            + "; ".join(diff) + ". Use another --study, or repeat the original options.")
+    return study

@@ -1,0 +1,220 @@
+"""Reading a study: its trials, promotions, full-batch results, the best design, the summary;
+sampling, and the controllers a study's episodes are driven by."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tumblebot.sim.design import PARAMETERS, Design
+from tumblebot.sim.evaluate import Controller, Servo
+from tumblebot.sim.optimize.objective import Objective, OptimizeError
+from tumblebot.sim.optimize.recipes import Recipe
+from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, load_config
+
+if TYPE_CHECKING:
+    import optuna
+
+
+# --------------------------------------------------------------------------- sampling
+class TrialNumberSampler:
+    """Start-up designs drawn from ``SeedSequence([seed, trial.number])``: the same designs
+    whichever process runs which trial, so a study is reproducible with any worker count."""
+
+    def __init__(self, seed: int) -> None:
+        self.seed = seed
+
+    def value(self, trial_number: int, name: str, low: float, high: float) -> float:
+        ss = np.random.SeedSequence([self.seed, trial_number, PARAMETERS.index(name)])
+        return float(np.random.default_rng(ss).uniform(low, high))
+
+
+def make_sampler(recipe: Recipe, seed: int, process_salt: int) -> optuna.samplers.BaseSampler:
+    import optuna
+    from optuna.distributions import BaseDistribution, FloatDistribution
+
+    base = TrialNumberSampler(seed)
+
+    class _Startup(optuna.samplers.RandomSampler):
+        def sample_independent(self, study: optuna.Study, trial: optuna.trial.FrozenTrial, param_name: str,
+                               param_distribution: BaseDistribution) -> Any:
+            assert isinstance(param_distribution, FloatDistribution)
+            return base.value(trial.number, param_name, param_distribution.low, param_distribution.high)
+
+    return optuna.samplers.GPSampler(seed=int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0]),
+                                     independent_sampler=_Startup(seed=seed), n_startup_trials=recipe.startup,
+                                     deterministic_objective=False, warn_independent_sampling=False)
+
+
+# --------------------------------------------------------------------------- trials
+def _is_infeasible(t: optuna.trial.FrozenTrial) -> bool:
+    return "infeasible" in t.user_attrs
+
+
+def _imputed_value(study: optuna.Study) -> float:
+    """The value an infeasible design is told with: the worst feasible value so far (0 before
+    any). With the constraint ``r - l <= 0`` this keeps the GP out of the infeasible region
+    without inventing episodes; the design is flagged and never reported as an optimum."""
+    from optuna.trial import TrialState
+
+    values = [t.value for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+              if t.value is not None and not _is_infeasible(t)]
+    return min(values) if values else 0.0
+
+
+#: Name of the Optuna constraint ``r - l`` (feasible when <= 0) set on every trial.
+CONSTRAINT = "pivot_radius_minus_leg"
+
+
+def counted_trials(study: optuna.Study) -> int:
+    """Trials that count toward ``--trials``: finished, infeasible, or running in some worker.
+    Interrupted trials (Ctrl-C, a killed process) do not count; they are redone."""
+    from optuna.trial import TrialState
+
+    n = 0
+    for t in study.get_trials(deepcopy=False):
+        if t.state in (TrialState.COMPLETE, TrialState.RUNNING) or (t.state == TrialState.FAIL and _is_infeasible(t)):
+            n += 1  # (NaN results are failed and flagged infeasible; they count too)
+    return n
+
+
+def trial_design(t: optuna.trial.FrozenTrial) -> Design:
+    return Design(*(t.params[n] for n in PARAMETERS))
+
+
+def promotions(study: optuna.Study) -> dict[int, dict[str, Any]]:
+    """Full-batch results of promoted trials (efficient recipe), by trial number."""
+    out: dict[int, dict[str, Any]] = {}
+    for key, value in study.user_attrs.items():
+        if key.startswith(PROMOTED_PREFIX) and isinstance(value, dict) and "value" in value:
+            out[int(key[len(PROMOTED_PREFIX):])] = value
+    return out
+
+
+@dataclass
+class Candidate:
+    """A design with its full-batch result."""
+
+    trial: int
+    design: Design
+    value: float
+    batch: int
+    R: dict[str, list[float]]
+    e: float
+
+
+def full_batch_results(study: optuna.Study) -> list[Candidate]:
+    """Every design evaluated on the study's full batch (trials and promotions)."""
+    from optuna.trial import TrialState
+
+    config = load_config(study)
+    if config is None:
+        raise OptimizeError(f"study {study.study_name!r} was not made by tumblebot optimize")
+    promoted = promotions(study)
+    out: list[Candidate] = []
+    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+        if _is_infeasible(t):
+            continue
+        if t.number in promoted:
+            p = promoted[t.number]
+            out.append(Candidate(t.number, trial_design(t), float(p["value"]), int(p["batch"]), p["R"],
+                                 float(t.user_attrs["e"])))
+        elif int(t.user_attrs.get("batch", 0)) >= config.batch or t.user_attrs.get("batch") == 0:
+            assert t.value is not None
+            out.append(Candidate(t.number, trial_design(t), float(t.value), int(t.user_attrs.get("batch", 0)),
+                                 t.user_attrs.get("R", {}), float(t.user_attrs["e"])))
+    return out
+
+
+def best_candidate(study: optuna.Study) -> Candidate | None:
+    """The study's optimum: the best design on the full batch (or None before any)."""
+    cands = full_batch_results(study)
+    return max(cands, key=lambda c: c.value) if cands else None
+
+
+def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
+                      servo: Servo | None = None) -> dict[str, Controller]:
+    """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
+    (the bundled ones with the thesis observation) or a gait name (``goto`` included), as
+    a task → :class:`Controller` map, each checked for its task and ``servo`` (here,
+    before a study is opened or written)."""
+    if controller in ("policy", "thesis-policy"):
+        out = {t: Controller("onnx", str(p), allow_servo_mismatch)
+               for t, p in bundled_policies(tasks, thesis=controller == "thesis-policy").items()}
+    else:
+        out = {t: Controller.of_gait(controller) for t in tasks}
+    for t, c in out.items():
+        c.check(t, servo)
+    return out
+
+
+def bundled_policies(tasks: list[str], thesis: bool = False) -> dict[str, Path]:
+    """The bundled ONNX policy of each task (with ``thesis``, the one that sees only the
+    thesis observation, :func:`~tumblebot.sim.policy.bundled_policy`)."""
+    from tumblebot.sim.policy import PolicyError, bundled_policy
+
+    out = {t: bundled_policy(t, "thesis" if thesis else None) for t in tasks}
+    missing = [t for t, path in out.items() if not path.is_file()]
+    if missing:
+        raise PolicyError(f"no bundled policy for {', '.join(missing)} yet (policies/TASK.onnx); "
+                          "train and export one first (tumblebot train / tumblebot export)")
+    return out
+
+
+def format_best(best: Candidate | None, objective: Objective) -> str:
+    """The optimum as a small table, for the terminal."""
+    if best is None:
+        return "no design has been evaluated on the full batch yet"
+    w = best.design
+    lines = [f"best robot: trial {best.trial}, {best.batch} episodes per task",
+             "  x = {:.3f} m   y = {:.3f} m   z = {:.3f} m   l = {:.3f} m".format(*w.as_tuple()),
+             f"  e(w) = {best.e:.3f} W/m   objective = {best.value:.5g}"]
+    for task, R in best.R.items():
+        lines.append(f"  {task}: mean R = {float(np.mean(R)):.3f} (weight {objective.weights[task]:g})")
+    return "\n".join(lines)
+
+
+
+def study_summary(study: optuna.Study) -> dict[str, Any]:
+    """A JSON-ready summary: the objective, counts and the optimum."""
+    from optuna.trial import TrialState
+
+    config = load_config(study)
+    if config is None:
+        raise OptimizeError(f"study {study.study_name!r} was not made by tumblebot optimize")
+    trials = study.get_trials(deepcopy=False)
+    best = best_candidate(study)
+    return {
+        "study": study.study_name,
+        "config": asdict(config),
+        "trials": counted_trials(study),  #: what the terminal says: finished, infeasible and running ones
+        "feasible": sum(t.state == TrialState.COMPLETE and not _is_infeasible(t) for t in trials),
+        "infeasible": sum(_is_infeasible(t) for t in trials),
+        "interrupted": sum(bool(t.user_attrs.get("interrupted")) for t in trials),
+        "episodes": episode_count(study),
+        "best": None if best is None else {
+            "trial": best.trial, "design": best.design.as_dict(),
+            "objective": best.value, "batch": best.batch, "e": best.e,
+            "mean_R": {t: float(np.mean(r)) for t, r in best.R.items()},
+        },
+    }
+
+
+def episode_count(study: optuna.Study) -> int:
+    """Episodes the study has cost so far (screening, full batches and promotions)."""
+    total = 0
+    for t in study.get_trials(deepcopy=False):
+        total += sum(len(r) for r in t.user_attrs.get("R", {}).values())
+    for number, p in promotions(study).items():
+        screened = study.trials[number].user_attrs.get("R", {})
+        total += sum(len(r) for r in p["R"].values()) - sum(len(r) for r in screened.values())
+    return total
+
+
+def to_json(obj: Any) -> str:
+    return json.dumps(obj, indent=2, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else o)
