@@ -1,0 +1,291 @@
+"""The report's numbers: the thesis's reference values, studies read back, designs evaluated
+on fresh episodes, and the Table 3.1 / 3.2 equivalents, the universal-optimum check and the
+slices."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
+from tumblebot.sim.evaluate import Servo
+from tumblebot.sim.optimize import (
+    Objective,
+    OptimizeError,
+    StudyConfig,
+    best_candidate,
+    episode_count,
+    format_xi,
+    full_batch_results,
+    load_config,
+    load_study,
+    promotions,
+    study_controllers,
+)
+from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.stats import mean_ci95
+
+#: Thesis Table 3.1 (nav-flat): ξ → (x, y, z, l, R, e).
+THESIS_TABLE_31: dict[str, tuple[float, float, float, float, float, float]] = {
+    "0": (*THESIS_ROBOTS["0"].as_tuple(), 0.854, 6.05),
+    "1": (*THESIS_ROBOTS["1"].as_tuple(), 0.857, 6.00),
+    "3": (*THESIS_ROBOTS["3"].as_tuple(), 0.870, 5.20),
+    "inf": (*THESIS_ROBOTS["inf"].as_tuple(), 0.853, 3.76),
+}
+#: Thesis Table 3.2: perturbation → (R, p).
+THESIS_TABLE_32: dict[str, tuple[float, float | None]] = {
+    "none": (0.854, None), "+x": (0.869, 0.46), "-x": (0.785, 1.9e-6), "+y": (0.868, 0.22), "-y": (0.837, 6.9e-4),
+    "+z": (0.843, 0.278), "-z": (0.827, 8.9e-4), "+l": (0.823, 0.019), "-l": (0.813, 3.7e-4),
+}
+#: Thesis Table 3.1 p-values against the ξ = 0 robot.
+THESIS_TABLE_31_P: dict[str, float | None] = {"0": None, "1": 0.33, "3": 0.08, "inf": 0.53}
+PERTURBATION = 0.1  # m, as in the thesis
+CONTROLLER_LABEL = {"policy": "each task's bundled policy",
+                    "thesis-policy": "each task's bundled policy with the thesis's 9-number observation",
+                    "goto": "goto (the hand-written navigation controller)"}
+
+
+@dataclass
+class Evaluated:
+    """A design evaluated on the report's episodes."""
+
+    design: Design
+    R: dict[str, np.ndarray]
+    e: float
+
+    def mean(self, task: str) -> float:
+        return float(np.mean(self.R[task]))
+
+    def ci(self, task: str) -> tuple[float, float]:
+        return mean_ci95(self.R[task])
+
+
+def paired_p(a: np.ndarray, b: np.ndarray) -> float | None:
+    """Two-sided paired t-test p-value (episodes shared by common random numbers)."""
+    from scipy import stats
+
+    if len(a) < 2 or len(a) != len(b):
+        return None
+    d = np.asarray(a) - np.asarray(b)
+    if np.allclose(d, 0.0):
+        return 1.0
+    return float(stats.ttest_rel(a, b).pvalue)
+
+
+@dataclass
+class StudyResult:
+    name: str
+    config: StudyConfig
+    objective: Objective
+    tasks: list[str]  # tasks evaluated in the report (R is reported for them even when ξ = ∞)
+    trials: list[dict[str, Any]]
+    episodes: int
+    best: Evaluated | None = None
+    best_trial: int | None = None
+    study_value: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def xi_label(self) -> str:
+        return format_xi(self.objective.xi)
+
+
+
+class Evaluator:
+    """Evaluates designs on the report's episodes, with a cache and a progress bar."""
+
+    def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
+                 controller: str = "policy", servo: Servo | None = None, allow_servo_mismatch: bool = False) -> None:
+        from tumblebot.sim.runner import EpisodeRunner
+
+        self.runner = (EpisodeRunner(study_controllers(controller, tasks, allow_servo_mismatch), workers=workers,
+                                     servo=servo)
+                       if tasks else None)
+        self.episodes, self.seed = episodes, seed
+        self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
+        self.bar: Any = None
+        if progress and tasks:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, unit="design", desc="report", mininterval=0.5)
+
+    def __call__(self, design: Design, tasks: list[str]) -> Evaluated:
+        todo = [t for t in tasks if (design.as_tuple(), t) not in self.cache]
+        if todo and self.runner is not None and design.can_tumble:
+            for t, r in self.runner.run(design, todo, 0, self.episodes, self.seed).items():
+                self.cache[(design.as_tuple(), t)] = r
+        elif todo:  # a body that cannot tumble is not simulated: it has no R
+            for t in todo:
+                self.cache[(design.as_tuple(), t)] = np.full(self.episodes, np.nan)
+        if self.bar is not None:
+            self.bar.update()
+        return Evaluated(design, {t: self.cache[(design.as_tuple(), t)] for t in tasks}, energy_per_metre(design))
+
+    def skip(self) -> None:
+        if self.bar is not None:
+            self.bar.update()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.n = self.bar.total  # every design is evaluated (cached ones count once)
+            self.bar.refresh()
+            self.bar.close()
+        if self.runner is not None:
+            self.runner.close()
+
+
+def load_result(storage: Any, name: str) -> StudyResult:
+    from optuna.trial import TrialState
+
+    study = load_study(storage, name)
+    config = load_config(study)
+    if config is None:
+        raise OptimizeError(f"study {name!r} was not made by tumblebot optimize")
+    objective = config.objective()
+    tasks = [t for t, w in objective.weights.items() if w > 0]
+    trials = []
+    for t in study.get_trials(deepcopy=False):
+        if t.state != TrialState.COMPLETE or "infeasible" in t.user_attrs:
+            continue
+        trials.append({"number": t.number, "value": t.value, "params": dict(t.params),
+                       "batch": t.user_attrs.get("batch", 0), "datetime": t.datetime_complete})
+    best = best_candidate(study)
+    result = StudyResult(name, config, objective, tasks, trials, episode_count(study))
+    full = sorted(full_batch_results(study), key=lambda c: c.trial)
+    result.extra["full_batch"] = [(c.trial, c.value) for c in full]
+    result.extra["promoted"] = sorted(promotions(study))
+    if best is not None:
+        result.best_trial, result.study_value = best.trial, best.value
+        result.extra["best_design"] = best.design
+    return result
+
+
+def common_controller(results: list[StudyResult], controller: str | None, servo: Servo | None
+                       ) -> tuple[str, Servo]:
+    """The controller and servo of the re-evaluation: as given, else the studies' own."""
+    if controller is None:
+        used = sorted({r.config.controller for r in results})
+        if len(used) > 1:
+            raise OptimizeError(f"the studies were run with different controllers ({', '.join(used)}); "
+                                "choose one for the report with --gait (goto) or run separate reports")
+        controller = used[0]
+    if servo is None:
+        servos = {r.config.servo() for r in results}
+        if len(servos) > 1:
+            raise OptimizeError("the studies were run with different servos ("
+                                + "; ".join(sorted(s.describe() for s in servos))
+                                + "); choose one with --motor-model/--stall-torque")
+        servo = servos.pop()
+    return controller, servo
+
+
+
+def reference_study(usable: list[StudyResult]) -> StudyResult:
+    """The ξ = 0 study of the first study's tasks, else the first study: the 'ξ = 0 robot'."""
+    first = usable[0]
+    for r in usable:
+        if r.objective.xi == 0 and r.objective.weights == first.objective.weights:
+            return r
+    return first
+
+
+def build_table31(usable: list[StudyResult], reference: StudyResult, task: str) -> list[dict[str, Any]]:
+    rows = []
+    assert reference.best is not None
+    for r in sorted(usable, key=lambda s: (s.objective.xi, s.name)):
+        assert r.best is not None
+        row: dict[str, Any] = {"study": r.name, "tasks": r.tasks, "xi": r.xi_label,
+                               "design": r.best.design.as_dict(),
+                               "e": r.best.e, "trial": r.best_trial, "study_objective": r.study_value,
+                               "study_episodes": r.episodes,
+                               "R": {t: r.best.mean(t) for t in r.tasks}, "ci95": {t: r.best.ci(t) for t in r.tasks}}
+        if task in r.best.R:
+            row["p_vs_reference"] = None if r is reference else paired_p(r.best.R[task], reference.best.R[task])
+        if r.tasks == ["nav-flat"] and r.xi_label in THESIS_TABLE_31:
+            x, y, z, l, R, e = THESIS_TABLE_31[r.xi_label]  # noqa: E741
+            row["thesis"] = {"x": x, "y": y, "z": z, "l": l, "R": R, "e": e, "p": THESIS_TABLE_31_P[r.xi_label]}
+        rows.append(row)
+    return rows
+
+
+def build_table32(ev: Evaluator, reference: StudyResult, task: str) -> list[dict[str, Any]]:
+    assert reference.best is not None
+    base = reference.best.design
+    rows: list[dict[str, Any]] = [{"change": "none", "design": base.as_tuple(), "in_bounds": True,
+                                   "R": reference.best.mean(task), "p": None, "can_tumble": base.can_tumble,
+                                   "thesis_R": THESIS_TABLE_32["none"][0]}]
+    for name in PARAMETERS:
+        for sign in (+1, -1):
+            values = list(base.as_tuple())
+            values[PARAMETERS.index(name)] += sign * PERTURBATION
+            label = f"{'+' if sign > 0 else '-'}{name}"
+            row: dict[str, Any] = {"change": label, "design": tuple(values), "thesis_R": THESIS_TABLE_32[label][0],
+                                   "thesis_p": THESIS_TABLE_32[label][1]}
+            if min(values) <= 0:
+                row.update(in_bounds=False, R=None, p=None, can_tumble=False, note="not a body (a length <= 0)")
+                ev.skip()
+            else:
+                w = Design.from_sequence(values, allow_out_of_bounds=True)
+                res = ev(w, [task])
+                row.update(in_bounds=w.in_bounds(), can_tumble=w.can_tumble, e=res.e)
+                if w.can_tumble:
+                    row.update(R=res.mean(task), p=paired_p(res.R[task], reference.best.R[task]))
+                else:
+                    row.update(R=None, p=None, note="cannot tumble (l < r)")
+            rows.append(row)
+    return rows
+
+
+def universal_check(ev: Evaluator, single: list[StudyResult], tasks: list[str]) -> dict[str, Any]:
+    """Evaluate each task's optimum on every task: is one robot best for all of them?"""
+    if len(tasks) < 2:
+        return {"checked": False, "reason": f"needs single-task studies for at least two tasks; have "
+                                            f"{', '.join(tasks) or 'none'}"}
+    optimum: dict[str, StudyResult] = {}
+    for r in single:  # the first study of each task (ξ = 0 preferred) stands for it
+        t = r.tasks[0]
+        if t not in optimum or (r.objective.xi == 0 and optimum[t].objective.xi != 0):
+            optimum[t] = r
+    matrix: dict[str, dict[str, Any]] = {}
+    tied = True
+    for task in tasks:
+        own = optimum[task].extra["best_design"]
+        own_R = ev(own, [task]).R[task]
+        matrix[task] = {}
+        for other in tasks:
+            w = optimum[other].extra["best_design"]
+            R = ev(w, [task]).R[task]
+            p = None if other == task else paired_p(R, own_R)
+            matrix[task][other] = {"R": float(np.mean(R)), "p_vs_own_optimum": p}
+            if p is not None and p < 0.05:
+                tied = False
+    return {"checked": True, "optima": {t: optimum[t].extra["best_design"].as_tuple() for t in tasks},
+            "studies": {t: optimum[t].name for t in tasks}, "matrix": matrix, "same_robot": tied}
+
+
+def one_parameter_slices(ev: Evaluator, reference: StudyResult, points: int) -> dict[str, Any]:
+    """The reference objective along each parameter through the optimum, the others fixed."""
+    assert reference.best is not None
+    base = reference.best.design
+    obj = reference.objective
+    out: dict[str, Any] = {"study": reference.name, "optimum": base.as_tuple(), "parameters": {}}
+    for name in PARAMETERS:
+        lo, hi = BOUNDS[name]
+        rows: list[dict[str, Any]] = []
+        for v in np.linspace(lo, hi, points):
+            values = list(base.as_tuple())
+            values[PARAMETERS.index(name)] = float(v)
+            w = Design.from_sequence(values)
+            res = ev(w, reference.tasks)
+            if not w.can_tumble:
+                rows.append({"value": float(v), "objective": None, "ci95": None, "can_tumble": False})
+                continue
+            per = obj.per_episode(res.R, res.e)
+            half = 1.96 * float(np.std(per, ddof=1)) / math.sqrt(len(per)) if len(per) > 1 else 0.0
+            mean = float(np.mean(per))
+            rows.append({"value": float(v), "objective": mean, "ci95": [mean - half, mean + half], "can_tumble": True})
+        out["parameters"][name] = rows
+    return out
