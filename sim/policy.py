@@ -153,8 +153,8 @@ class OnnxPolicy:
         if task is not None and card.get("task") != task:
             raise PolicyError(f"policy {path} was trained for task {card.get('task')!r}, not {task!r}")
         observation = card.get("observation")
-        if not isinstance(observation, dict):
-            raise PolicyError(f"model card {cpath} has no observation layout")
+        if not isinstance(observation, dict) or not isinstance(observation.get("fields"), list):
+            raise PolicyError(f"model card {cpath} has no observation layout (observation.fields)")
         try:
             self.layout = layout_named(observation.get("fields", ()))
         except PolicyError as exc:

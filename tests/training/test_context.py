@@ -305,3 +305,14 @@ def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger:
     rerun = json.loads(third.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
     assert "baselines_reused_from_previous_card" not in rerun
     assert rerun["baselines"] == card["evaluation"]["designs"]["xi3_robot"]["baselines"]
+
+
+def test_that_a_card_whose_observation_fields_are_not_a_list_is_one_clear_error(context_policy: Path,
+                                                                                tmp_path: Path) -> None:
+    bad = tmp_path / "nav-flat.onnx"
+    bad.write_bytes(context_policy.read_bytes())
+    card = json.loads(context_policy.with_suffix(".json").read_text())
+    card["observation"]["fields"] = 7
+    bad.with_suffix(".json").write_text(json.dumps(card))
+    with pytest.raises(PolicyError, match="no observation layout"):
+        OnnxPolicy(bad)
