@@ -68,11 +68,13 @@ def _paired_p(a: EvalResult, b: EvalResult) -> float:
 
 
 def goto_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
-                    workers: int) -> dict[str, Any]:
-    """The policy against ``goto`` on each design, on the same episodes; a table's rows."""
+                    workers: int, known: dict[Design, EvalResult] | None = None) -> dict[str, Any]:
+    """The policy against ``goto`` on each design, on the same episodes; a table's rows.
+    ``known`` holds the policy's results already measured on these episodes, by design."""
     rows: list[dict[str, Any]] = []
     for label, design in designs.items():
-        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
+        pol = (known or {}).get(design) or evaluate(task, design, Controller("onnx", str(policy)), episodes, seed,
+                                                    workers, progress=True)
         goto = evaluate(task, design, Controller("goto", "goto"), episodes, seed, workers, progress=True)
         rows.append({"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
                      "goto_mean_R": goto.mean_R, "difference": pol.mean_R - goto.mean_R,
@@ -134,8 +136,10 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
     """The card's evaluation. ``previous``, an earlier card's ``evaluation`` for the same
     task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`)."""
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
+    measured: dict[Design, EvalResult] = {}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
         pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
+        measured[design] = pol
         entry = pol.summary()
         recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers)
         if recorded is not None:
@@ -155,5 +159,5 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
     if task in NAVIGATION_TASKS:
         # The grid on flat ground; on terrain (six times slower to simulate) the card's two designs.
         designs = NAV_GRID if task == "nav-flat" else {"thesis ξ = 3 robot": XI3_ROBOT, "random design": RANDOM_DESIGN}
-        out["against_goto"] = goto_comparison(policy, task, designs, episodes, seed, workers)
+        out["against_goto"] = goto_comparison(policy, task, designs, episodes, seed, workers, measured)
     return out

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import csv
 import json
-import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -42,6 +41,7 @@ from tumblebot.training.ppo import (
     build_vec_env,
     new_model,
     save_checkpoint,
+    stop_requests,
 )
 
 IMITATION_FIELDS = ("iteration", "driver", "episodes", "dataset", "agreement", "student_final_R", "teacher_final_R",
@@ -212,6 +212,33 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> 
     (run_dir / "imitation.json").write_text(json.dumps(asdict(imitation), indent=2) + "\n")
 
 
+def _fit_and_save(model: Any, optimiser: torch.optim.Optimizer,
+                  data: list[tuple[np.ndarray, np.ndarray, np.ndarray]], imitation: ImitationConfig, seed: int,
+                  stop: StopRequest, run_dir: Path) -> tuple[int, float]:
+    """Aggregate ``data`` (inputs, labels, returns per iteration), save it as
+    ``dagger.npz``, fit the student to it; returns the dataset size and the cross-entropy."""
+    inputs, labels, returns = (np.concatenate([d[k] for d in data]) for k in range(3))
+    np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=returns)
+    return len(labels), fit(model, optimiser, inputs, labels, returns, imitation, seed, stop)
+
+
+def _end_iteration(model: Any, run_dir: Path, logs: _RunLogs, summary: IterationSummary, batch: Batch, steps: int,
+                   on_iteration: Callable[[IterationSummary], None] | None) -> None:
+    """Log the iteration, checkpoint the student, tell the caller."""
+    logs.record(summary, batch, steps)
+    model.num_timesteps = steps
+    save_checkpoint(model, run_dir)
+    if on_iteration is not None:
+        on_iteration(summary)
+
+
+def _finish_run(config: TrainConfig, run_dir: Path, steps: int) -> Path:
+    """Rewrite the run's config with the steps taken; the run's checkpoint."""
+    config.total_steps = max(steps, 1)
+    (run_dir / "config.json").write_text(config.to_json())
+    return run_dir / "latest.zip"
+
+
 def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
             on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
     """DAgger of ``goto`` into a new run in ``run_dir``; returns its checkpoint.
@@ -222,40 +249,30 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     env = build_vec_env(config, seed=config.seed)
     model = new_model(config, env, run_dir)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
-    stop = StopRequest()
-    previous = signal.signal(signal.SIGINT, stop), signal.signal(signal.SIGTERM, stop)
     start, steps = time.monotonic(), 0
-    data: list[Batch] = []
+    data: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     logs = _RunLogs(run_dir)
-    try:
-        for iteration in range(imitation.iterations):
-            driver = "student" if iteration > 0 else "goto"
-            with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
-                      desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
-                batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS, stop, bar)
-            data.append(batch)
-            steps += len(batch.labels)
-            inputs, labels, returns = (np.concatenate([getattr(b, k) for b in data])
-                                       for k in ("inputs", "labels", "returns"))
-            np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=returns)
-            loss = fit(model, optimiser, inputs, labels, returns, imitation, config.seed + iteration, stop)
-            summary = IterationSummary(iteration, driver, len(batch.final_R), len(labels), batch.student_agreement,
-                                       float(np.mean(batch.final_R)), loss, time.monotonic() - start)
-            logs.record(summary, batch, steps)
-            model.num_timesteps = steps
-            save_checkpoint(model, run_dir)
-            if on_iteration is not None:
-                on_iteration(summary)
-    except KeyboardInterrupt:
-        raise TrainingInterrupted(steps, run_dir) from None
-    finally:
-        signal.signal(signal.SIGINT, previous[0])
-        signal.signal(signal.SIGTERM, previous[1])
-        logs.close()
-        env.close()
-    config.total_steps = max(steps, 1)
-    (run_dir / "config.json").write_text(config.to_json())
-    return run_dir / "latest.zip"
+    with stop_requests() as stop:
+        try:
+            for iteration in range(imitation.iterations):
+                driver = "student" if iteration > 0 else "goto"
+                with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
+                          desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
+                    batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS,
+                                    stop, bar)
+                data.append((batch.inputs, batch.labels, batch.returns))
+                steps += len(batch.labels)
+                dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,
+                                              run_dir)
+                summary = IterationSummary(iteration, driver, len(batch.final_R), dataset, batch.student_agreement,
+                                           float(np.mean(batch.final_R)), loss, time.monotonic() - start)
+                _end_iteration(model, run_dir, logs, summary, batch, steps, on_iteration)
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(steps, run_dir) from None
+        finally:
+            logs.close()
+            env.close()
+    return _finish_run(config, run_dir, steps)
 
 
 def _discounted(rewards: np.ndarray, gamma: float) -> np.ndarray:
@@ -323,35 +340,25 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
     spec = WorkerSpec(config.task, config.tumbling_designs_only, config.motor_model, config.stall_torque,
                       config.state_weight, config.progress_weight, horizon)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
-    stop = StopRequest()
-    previous = signal.signal(signal.SIGINT, stop), signal.signal(signal.SIGTERM, stop)
     start, steps = time.monotonic(), 0
     logs = _RunLogs(run_dir)
-    try:
-        for iteration in range(imitation.iterations):
-            student = run_dir / "student.onnx"
-            export_onnx(model, student)
-            write_card(student, config.task, steps, config)
-            records = _lookahead_episodes(spec, student, config.seed, iteration, imitation, workers, stop)
-            returns = [_discounted(record.rewards, config.gamma) for record in records]
-            data.append((np.concatenate([r.inputs for r in records]), np.concatenate([r.labels for r in records]),
-                         np.concatenate(returns)))
-            steps += sum(len(r.labels) for r in records)
-            inputs, labels, values = (np.concatenate([d[k] for d in data]) for k in range(3))
-            np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=values)
-            loss = fit(model, optimiser, inputs, labels, values, imitation, config.seed + iteration, stop)
-            summary, batch = _summarise(records, iteration, len(labels), loss, time.monotonic() - start)
-            logs.record(summary, batch, steps)
-            model.num_timesteps = steps
-            save_checkpoint(model, run_dir)
-            if on_iteration is not None:
-                on_iteration(summary)
-    except KeyboardInterrupt:
-        raise TrainingInterrupted(steps, run_dir) from None
-    finally:
-        signal.signal(signal.SIGINT, previous[0])
-        signal.signal(signal.SIGTERM, previous[1])
-        logs.close()
-    config.total_steps = max(steps, 1)
-    (run_dir / "config.json").write_text(config.to_json())
-    return run_dir / "latest.zip"
+    with stop_requests() as stop:
+        try:
+            for iteration in range(imitation.iterations):
+                student = run_dir / "student.onnx"
+                export_onnx(model, student)
+                write_card(student, config.task, steps, config)
+                records = _lookahead_episodes(spec, student, config.seed, iteration, imitation, workers, stop)
+                returns = [_discounted(record.rewards, config.gamma) for record in records]
+                data.append((np.concatenate([r.inputs for r in records]),
+                             np.concatenate([r.labels for r in records]), np.concatenate(returns)))
+                steps += sum(len(r.labels) for r in records)
+                dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,
+                                              run_dir)
+                summary, batch = _summarise(records, iteration, dataset, loss, time.monotonic() - start)
+                _end_iteration(model, run_dir, logs, summary, batch, steps, on_iteration)
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(steps, run_dir) from None
+        finally:
+            logs.close()
+    return _finish_run(config, run_dir, steps)

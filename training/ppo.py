@@ -16,6 +16,7 @@ dropped on resume so the curve has no duplicates.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import multiprocessing
 import os
@@ -23,7 +24,7 @@ import shutil
 import signal
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -183,6 +184,20 @@ class StopRequest:
         self.signum = signum
 
 
+@contextlib.contextmanager
+def stop_requests() -> Iterator[StopRequest]:
+    """While inside, Ctrl-C and SIGTERM (`kill`, systemd, batch schedulers) only set the
+    yielded :class:`StopRequest`; the previous handlers come back on the way out."""
+    stop = StopRequest()
+    previous_term = signal.signal(signal.SIGTERM, stop)
+    previous_int = signal.signal(signal.SIGINT, stop)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGTERM, previous_term)
+        signal.signal(signal.SIGINT, previous_int)
+
+
 def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
     policy_kwargs: dict[str, Any] = {
         "features_extractor_class": TumblerFeaturesExtractor,
@@ -261,26 +276,22 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
     """
     torch.set_num_threads(1)
     config, model, env, start, wall_offset = _open_run(config, run_dir, resume, total_steps)
-    stop = StopRequest()
-    callback = RunCallback(run_dir, config, start, wall_offset, stop)
-    previous_term = signal.signal(signal.SIGTERM, stop)  # `kill`, systemd, batch schedulers
-    previous_int = signal.signal(signal.SIGINT, stop)
-    try:
-        remaining = config.total_steps - start
-        if remaining > 0:
-            model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
-                        tb_log_name="ppo")
-        if stop.signum is not None:
-            raise KeyboardInterrupt
-        callback.save()
-    except KeyboardInterrupt:
-        callback.save()
-        raise TrainingInterrupted(model.num_timesteps, run_dir) from None
-    finally:
-        signal.signal(signal.SIGTERM, previous_term)
-        signal.signal(signal.SIGINT, previous_int)
-        callback.close()
-        env.close()
+    with stop_requests() as stop:
+        callback = RunCallback(run_dir, config, start, wall_offset, stop)
+        try:
+            remaining = config.total_steps - start
+            if remaining > 0:
+                model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
+                            tb_log_name="ppo")
+            if stop.signum is not None:
+                raise KeyboardInterrupt
+            callback.save()
+        except KeyboardInterrupt:
+            callback.save()
+            raise TrainingInterrupted(model.num_timesteps, run_dir) from None
+        finally:
+            callback.close()
+            env.close()
     from tumblebot.training.curves import plot_learning_curve
 
     plot_learning_curve(run_dir / "episodes.csv", run_dir / "learning_curve.png", title=f"{config.task} (PPO)")

@@ -192,7 +192,7 @@ def _imitate(args: argparse.Namespace) -> int:
     settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
     config = TrainConfig(task=task, observation="context", tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
-                         motor_model=args.motor_model or "dc",
+                         motor_model=args.motor_model,
                          **({} if args.stall_torque is None else {"stall_torque": args.stall_torque}))
     print(f"imitating goto on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
           f"{config.envs} environments, in {args.run_dir}")
@@ -660,9 +660,7 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="hidden layer sizes (default 256,256)")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
-    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None, help="servo model (default dc)")
-    p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
-                   help="servo stall torque (default 0.582)")
+    _add_servo_arguments(p)
     p.add_argument("--refine", type=Path, default=None, metavar="RUN",
                    help="continue from the imitation run RUN toward a privileged teacher: goto, with a clairvoyant "
                         "search over the episode's last --lookahead steps (every action tried from a snapshot, "
