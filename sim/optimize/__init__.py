@@ -23,7 +23,13 @@ steering the search:
 Recipes (:class:`Recipe`): ``standard`` (every trial a full batch), ``thesis`` (exactly
 the thesis's schedule: 1000 random designs, 1000 EI iterations, ``B = 240``) and
 ``efficient`` (trials screened on a small batch; the most promising designs are promoted
-to the full batch, reusing their screening episodes).
+to the full batch, reusing their screening episodes). The efficient recipe, and every
+front study, replace Optuna's GP on the objective by a GP on ``R`` alone with ``e(w)``
+exact (:mod:`~tumblebot.sim.optimize.surrogate`), which also chooses the promotions.
+
+Front studies (``Objective.front``): one study for several ``ξ`` at once. Its acquisition
+serves each finite ``ξ`` in turn from the same GP on ``R``; :func:`front_optima` reads the
+optimum of each ``ξ`` from its full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body
 past its balance point (SPEC §3). Such trials cost no episodes; they are recorded with the
@@ -41,6 +47,7 @@ from this package, as it was from the single module it replaces.
 
 from __future__ import annotations
 
+from tumblebot.sim.optimize import surrogate
 from tumblebot.sim.optimize.objective import (
     Objective,
     OptimizeError,
@@ -49,6 +56,7 @@ from tumblebot.sim.optimize.objective import (
     format_xi,
     parse_tasks,
     parse_xi,
+    parse_xi_list,
 )
 from tumblebot.sim.optimize.recipes import (
     Recipe,
@@ -58,6 +66,7 @@ from tumblebot.sim.optimize.search import (
     SMOOTHING_WIDTH,
     Progress,
     optimize,
+    promotion_scores,
     screen_scores,
 )
 from tumblebot.sim.optimize.storage import (
@@ -79,6 +88,8 @@ from tumblebot.sim.optimize.trials import (
     counted_trials,
     episode_count,
     format_best,
+    format_front,
+    front_optima,
     full_batch_results,
     make_sampler,
     promotions,
@@ -86,6 +97,7 @@ from tumblebot.sim.optimize.trials import (
     study_summary,
     to_json,
     trial_design,
+    value_at,
 )
 
 __all__ = [
@@ -109,7 +121,9 @@ __all__ = [
     "counted_trials",
     "episode_count",
     "format_best",
+    "format_front",
     "format_xi",
+    "front_optima",
     "full_batch_results",
     "load_config",
     "load_study",
@@ -119,10 +133,14 @@ __all__ = [
     "optimize",
     "parse_tasks",
     "parse_xi",
+    "parse_xi_list",
+    "promotion_scores",
     "promotions",
     "screen_scores",
     "study_controllers",
     "study_summary",
+    "surrogate",
     "to_json",
     "trial_design",
+    "value_at",
 ]

@@ -111,17 +111,48 @@ def format_xi(xi: float) -> str:
     return "inf" if math.isinf(xi) else f"{xi:g}"
 
 
+def parse_xi_list(text: str) -> tuple[float, ...]:
+    """``"0,1,3,inf"`` → ``(0.0, 1.0, 3.0, inf)``: distinct values, in the order given."""
+    values = tuple(parse_xi(part) for part in text.split(",") if part.strip())
+    if not values:
+        raise OptimizeError(f"--xi {text!r}: give one or more values, e.g. 0,1,3,inf")
+    if len(set(values)) != len(values):
+        raise OptimizeError(f"--xi {text!r}: a value is given twice")
+    return values
+
+
 @dataclass(frozen=True)
 class Objective:
-    """What a study maximises: weighted tasks, ``ξ`` and the wrapper variant."""
+    """What a study maximises: weighted tasks, ``ξ`` and the wrapper variant.
+
+    A *front* study (``front`` = the ``ξ`` values it serves, e.g. ``(0, 1, 3, inf)``) searches
+    the Pareto front of high ``R`` and low ``e(w)`` instead of one ``ξ``: each trial's value
+    is its ``ξ = 0`` objective (the weighted mean ``R``; ``xi`` is 0), its acquisition aims at
+    the listed finite ``ξ`` in turn, and the optimum of any ``ξ`` is read from it afterwards
+    (:func:`~tumblebot.sim.optimize.trials.front_optima`). ``ξ = ∞`` costs no search: it is
+    the design of least ``e(w)``, which the study evaluates first."""
 
     weights: dict[str, float]
     xi: float
     variant: Variant = "thesis"
+    front: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise OptimizeError(f"wrapper variant {self.variant!r} must be one of {VARIANTS}")
+        if self.front and self.xi != 0:
+            raise OptimizeError("a front study has no single ξ (its trials are told their ξ = 0 value)")
+
+    @property
+    def targets(self) -> tuple[float, ...]:
+        """The finite ``ξ`` the acquisition serves: the front's, or this study's ``ξ``."""
+        if self.front:
+            return tuple(x for x in self.front if math.isfinite(x)) or (0.0,)
+        return (self.xi,)
+
+    def at(self, xi: float) -> Objective:
+        """The single-``ξ`` objective with these tasks and wrapper."""
+        return Objective(dict(self.weights), xi, self.variant)
 
     @property
     def tasks(self) -> list[str]:
@@ -142,4 +173,6 @@ class Objective:
 
     def describe(self) -> str:
         tasks = ",".join(f"{t}={wt:g}" for t, wt in self.weights.items())
+        if self.front:
+            return f"{tasks}, front for ξ={','.join(format_xi(x) for x in self.front)} ({self.variant} wrapper)"
         return f"{tasks} ξ={format_xi(self.xi)} ({self.variant} wrapper)"

@@ -98,13 +98,30 @@ def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]
     return scores
 
 
+def promotion_scores(study: optuna.Study, objective: Objective, xi: float) -> dict[int, float]:
+    """Each screened or promoted trial's expected objective at ``ξ``, for choosing promotions.
+
+    With three or more results, the posterior mean of the GP on ``R``
+    (:mod:`~tumblebot.sim.optimize.surrogate`: every batch weighted by its own noise, a
+    screening batch and a full batch as low- and high-fidelity looks at the same ``R``)
+    divided by the exact ``(e+1)^ξ``; before that, and for the monotone wrapper (not linear
+    in ``R``), :func:`screen_scores`."""
+    from tumblebot.sim.optimize import surrogate
+
+    obs = surrogate.observations(study, objective.weights)
+    if len(obs) < 3 or objective.variant != "thesis":
+        return screen_scores(study, objective.at(xi))
+    return surrogate.posterior_objective(surrogate.fit(obs), obs, xi)
+
+
 def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
-             seed: int, on_result: Callable[[], object] | None = None) -> int:
-    """Extend the most promising not-yet-promoted screened trial (by :func:`screen_scores`)
-    to the full batch. Returns episodes run."""
+             seed: int, on_result: Callable[[], object] | None = None, xi: float | None = None) -> int:
+    """Extend the most promising not-yet-promoted screened trial at ``ξ`` (by
+    :func:`promotion_scores`; default the study's ``ξ``) to the full batch. Returns episodes run."""
     done = promotions(study)
     pending = {int(k[len("promoting:"):]) for k, v in study.user_attrs.items() if k.startswith("promoting:") and v}
-    scores = {n: v for n, v in screen_scores(study, objective).items() if n not in done and n not in pending}
+    ranked = promotion_scores(study, objective, objective.xi if xi is None else xi)
+    scores = {n: v for n, v in ranked.items() if n not in done and n not in pending}
     if not scores:
         return 0
     t = study.trials[max(scores, key=lambda n: scores[n])]
@@ -145,7 +162,7 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     # Seeded by the study's size at start: a rerun is reproducible, and workers joining a
     # study later get other seeds (workers started together differ through qLogEI, which
     # conditions on each other's running trials).
-    sampler = make_sampler(recipe, seed, process_salt=len(study.trials))
+    sampler = make_sampler(recipe, seed, process_salt=len(study.trials), objective=objective)
     study.sampler = sampler
     distributions: dict[str, optuna.distributions.BaseDistribution] = {
         n: optuna.distributions.FloatDistribution(*BOUNDS[n]) for n in PARAMETERS}
@@ -154,7 +171,10 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     last_state = ""
     n_tasks = len(objective.tasks)
     spent_before = episode_count(study) if episode_budget is not None else 0
-    reserve = recipe.final_promotions * (recipe.batch - recipe.screen_batch) * n_tasks
+    targets = objective.targets
+    reserve = recipe.final_promotions * len(targets) * (recipe.batch - recipe.screen_batch) * n_tasks
+    if objective.front and not study.trials:
+        _enqueue_least_energy(study, seed)
 
     def affordable(cost: int, keep: int = 0) -> bool:
         return episode_budget is None or spent_before + episodes + cost + keep <= episode_budget
@@ -193,15 +213,36 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         last_value, last_state = value, "complete" if value is not None else "infeasible"
         if recipe.promote_every and objective.tasks and trial.number >= recipe.startup \
                 and (trial.number + 1) % recipe.promote_every == 0 and affordable(promotion, reserve):
-            episodes += _promote(study, objective, recipe, runner, seed, safe_point)
+            xi = targets[len(promotions(study)) % len(targets)]  # a front study serves its ξ in turn
+            episodes += _promote(study, objective, recipe, runner, seed, safe_point, xi)
         progress()
-    if objective.tasks:
+    if objective.tasks and recipe.screen_batch < recipe.batch:
+        episodes += _final_promotions(study, objective, recipe, runner, seed, safe_point,
+                                      lambda: affordable(promotion))
+    return progress()
+
+
+def _final_promotions(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
+                      seed: int, safe_point: Callable[[], None], affordable: Callable[[], bool]) -> int:
+    """At the end, for each target ξ: promote until its ``final_promotions`` most promising
+    designs have their full batch (or the budget is spent). Returns episodes run."""
+    episodes = 0
+    for xi in objective.targets:
         for _ in range(recipe.final_promotions):
             safe_point()
-            if _top_is_promoted(study, objective, recipe.final_promotions) or not affordable(promotion):
+            if _top_is_promoted(study, objective, recipe.final_promotions, xi) or not affordable():
                 break
-            episodes += _promote(study, objective, recipe, runner, seed, safe_point)
-    return progress()
+            episodes += _promote(study, objective, recipe, runner, seed, safe_point, xi)
+    return episodes
+
+
+def _enqueue_least_energy(study: optuna.Study, seed: int) -> None:
+    """A front study's first trial: the feasible design of least ``e(w)`` (found without
+    episodes), the low-energy end of the front and the ``ξ = ∞`` answer."""
+    from tumblebot.sim.optimize.surrogate import minimum_energy_design
+
+    w = minimum_energy_design(np.random.default_rng(np.random.SeedSequence([seed, 7919])))
+    study.enqueue_trial(dict(zip(PARAMETERS, (float(v) for v in w), strict=True)))
 
 
 class _Heartbeat:
@@ -275,9 +316,9 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
     return value, added
 
 
-def _top_is_promoted(study: optuna.Study, objective: Objective, top: int) -> bool:
-    """Whether the ``top`` most promising screened designs all have full-batch results."""
+def _top_is_promoted(study: optuna.Study, objective: Objective, top: int, xi: float) -> bool:
+    """Whether the ``top`` most promising screened designs at ``ξ`` all have full-batch results."""
     done = promotions(study)
-    scores = screen_scores(study, objective)
+    scores = promotion_scores(study, objective, xi)
     ranked = sorted(scores, key=lambda n: scores[n], reverse=True)
     return all(n in done for n in ranked[:top])

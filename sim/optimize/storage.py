@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.evaluate import Servo
-from tumblebot.sim.optimize.objective import Objective, OptimizeError
+from tumblebot.sim.optimize.objective import Objective, OptimizeError, format_xi
 from tumblebot.sim.optimize.recipes import Recipe
 
 if TYPE_CHECKING:
@@ -57,6 +57,9 @@ class StudyConfig:
     controller: str = "policy"
     motor_model: str = "dc"  #: the servo of every episode (SPEC: part of the objective)
     stall_torque: float = STALL_TORQUE
+    #: a front study's ξ values ("0", "1", "3", "inf"); empty for a single-ξ study (and for
+    #: every study made before front studies existed).
+    front: list[str] = field(default_factory=list)
 
     @classmethod
     def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
@@ -64,14 +67,16 @@ class StudyConfig:
         xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
         servo = servo or Servo()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
-                   recipe.startup, seed, policies, controller, servo.model, servo.stall_torque)
+                   recipe.startup, seed, policies, controller, servo.model, servo.stall_torque,
+                   [format_xi(x) for x in objective.front])
 
     def servo(self) -> Servo:
         return Servo.of(self.motor_model, self.stall_torque)
 
     def objective(self) -> Objective:
         xi = math.inf if self.xi == "inf" else float(self.xi)
-        return Objective(dict(self.weights), xi, self.variant)  # type: ignore[arg-type]
+        front = tuple(math.inf if x == "inf" else float(x) for x in self.front)
+        return Objective(dict(self.weights), xi, self.variant, front)  # type: ignore[arg-type]
 
     def differences(self, other: StudyConfig) -> list[str]:
         """What differs in the objective or its noise (``startup`` may change between runs)."""

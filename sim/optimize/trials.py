@@ -34,7 +34,13 @@ class TrialNumberSampler:
         return float(np.random.default_rng(ss).uniform(low, high))
 
 
-def make_sampler(recipe: Recipe, seed: int, process_salt: int) -> optuna.samplers.BaseSampler:
+def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Objective | None = None
+                 ) -> optuna.samplers.BaseSampler:
+    """The study's sampler: seeded random start-up designs, then a GP.
+
+    The efficient recipe and front studies use :class:`~tumblebot.sim.optimize.surrogate.RSampler`
+    (a GP on ``R`` alone, each trial's noise its own, ``e(w)`` exact); the other recipes use
+    Optuna's ``GPSampler`` on the objective (the thesis's acquisition, GP-EI)."""
     import optuna
     from optuna.distributions import BaseDistribution, FloatDistribution
 
@@ -46,9 +52,14 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int) -> optuna.sampler
             assert isinstance(param_distribution, FloatDistribution)
             return base.value(trial.number, param_name, param_distribution.low, param_distribution.high)
 
-    return optuna.samplers.GPSampler(seed=int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0]),
-                                     independent_sampler=_Startup(seed=seed), n_startup_trials=recipe.startup,
-                                     deterministic_objective=False, warn_independent_sampling=False)
+    salted = int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0])
+    if objective is not None and objective.tasks and (recipe.name == "efficient" or objective.front):
+        from tumblebot.sim.optimize.surrogate import RSampler
+
+        return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted)
+    return optuna.samplers.GPSampler(seed=salted, independent_sampler=_Startup(seed=seed),
+                                     n_startup_trials=recipe.startup, deterministic_objective=False,
+                                     warn_independent_sampling=False)
 
 
 # --------------------------------------------------------------------------- trials
@@ -131,6 +142,41 @@ def full_batch_results(study: optuna.Study) -> list[Candidate]:
     return out
 
 
+def value_at(candidate: Candidate, objective: Objective) -> float:
+    """A candidate's batch-mean objective recomputed for ``objective`` (another ``ξ``)."""
+    R = {t: np.asarray(r, float) for t, r in candidate.R.items()}
+    return float(np.mean(objective.per_episode(R, candidate.e)))
+
+
+def front_optima(study: optuna.Study, xis: tuple[float, ...]) -> dict[float, Candidate]:
+    """A front study's optimum of each ``ξ``: the full-batch design of best objective at that
+    ``ξ``; for ``ξ = ∞``, the design of least ``e(w)`` among all evaluated ones whose mean
+    ``R`` is positive (``e`` is exact, so a screening batch suffices to show it moves)."""
+    from optuna.trial import TrialState
+
+    config = load_config(study)
+    if config is None:
+        raise OptimizeError(f"study {study.study_name!r} was not made by tumblebot optimize")
+    objective = config.objective()
+    full = full_batch_results(study)
+    out: dict[float, Candidate] = {}
+    for xi in xis:
+        if math.isinf(xi):
+            moving = [Candidate(t.number, trial_design(t), -float(t.user_attrs["e"]), int(t.user_attrs["batch"]),
+                                t.user_attrs["R"], float(t.user_attrs["e"]))
+                      for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+                      if not _is_infeasible(t) and t.user_attrs.get("R")
+                      and all(float(np.mean(r)) > 0 for r in t.user_attrs["R"].values())]
+            if moving:
+                out[xi] = max(moving, key=lambda c: c.value)
+            continue
+        at = objective.at(xi)
+        scored = [Candidate(c.trial, c.design, value_at(c, at), c.batch, c.R, c.e) for c in full]
+        if scored:
+            out[xi] = max(scored, key=lambda c: c.value)
+    return out
+
+
 def best_candidate(study: optuna.Study) -> Candidate | None:
     """The study's optimum: the best design on the full batch (or None before any)."""
     cands = full_batch_results(study)
@@ -180,6 +226,27 @@ def format_best(best: Candidate | None, objective: Objective) -> str:
 
 
 
+def format_front(study: optuna.Study) -> str:
+    """A front study's optimum of each of its ξ, as a small table, for the terminal."""
+    config = load_config(study)
+    if config is None:
+        raise OptimizeError(f"study {study.study_name!r} was not made by tumblebot optimize")
+    objective = config.objective()
+    optima = front_optima(study, objective.front)
+    lines = ["optimum of each ξ (read from the front):",
+             "  ξ     trial  x      y      z      l      e (W/m)  mean R  episodes  objective"]
+    for xi in objective.front:
+        c = optima.get(xi)
+        label = "inf" if math.isinf(xi) else f"{xi:g}"
+        if c is None:
+            lines.append(f"  {label:<5} none on the full batch yet")
+            continue
+        R = float(np.mean(np.sum([objective.weights[k] * np.asarray(v) for k, v in c.R.items()], axis=0)))
+        lines.append(f"  {label:<5} {c.trial:>5}  {c.design.x:.3f}  {c.design.y:.3f}  {c.design.z:.3f}  "
+                     f"{c.design.l:.3f}  {c.e:7.3f}  {R:6.3f}  {len(next(iter(c.R.values()))):>8}  {c.value:.5g}")
+    return "\n".join(lines)
+
+
 def study_summary(study: optuna.Study) -> dict[str, Any]:
     """A JSON-ready summary: the objective, counts and the optimum."""
     from optuna.trial import TrialState
@@ -197,12 +264,16 @@ def study_summary(study: optuna.Study) -> dict[str, Any]:
         "infeasible": sum(_is_infeasible(t) for t in trials),
         "interrupted": sum(bool(t.user_attrs.get("interrupted")) for t in trials),
         "episodes": episode_count(study),
-        "best": None if best is None else {
-            "trial": best.trial, "design": best.design.as_dict(),
-            "objective": best.value, "batch": best.batch, "e": best.e,
-            "mean_R": {t: float(np.mean(r)) for t, r in best.R.items()},
-        },
+        "best": None if best is None else _candidate_json(best),
+        **({"front": {("inf" if math.isinf(xi) else f"{xi:g}"): _candidate_json(c)
+                      for xi, c in front_optima(study, config.objective().front).items()}}
+           if config.front else {}),
     }
+
+
+def _candidate_json(c: Candidate) -> dict[str, Any]:
+    return {"trial": c.trial, "design": c.design.as_dict(), "objective": c.value, "batch": c.batch, "e": c.e,
+            "mean_R": {t: float(np.mean(r)) for t, r in c.R.items()}}
 
 
 def episode_count(study: optuna.Study) -> int:

@@ -30,7 +30,7 @@ from tumblebot.sim.report.tables import (
     build_table31,
     build_table32,
     common_controller,
-    load_result,
+    load_results,
     one_parameter_slices,
     paired_p,
     reference_study,
@@ -44,12 +44,14 @@ __all__ = ["THESIS_TABLE_31", "THESIS_TABLE_31_P", "THESIS_TABLE_32", "Evaluated
 def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
                  workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
                  controller: str | None = None, servo: Servo | None = None,
-                 allow_servo_mismatch: bool = False) -> Path:
+                 allow_servo_mismatch: bool = False, xis: tuple[float, ...] | None = None) -> Path:
     """Evaluate and plot the studies; returns the path of ``report.md``.
 
     Every design is re-evaluated with one controller and one servo, so the tables compare
     like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``servo`` default
-    to what the studies used, which must then agree."""
+    to what the studies used, which must then agree. A front study (``optimize --front``)
+    stands for one row per ``ξ`` of ``xis`` (default: the ξ it was made for); ``xis`` is
+    refused for other studies."""
     if not studies:
         raise OptimizeError("give at least one --study")
     if len(set(studies)) != len(studies):
@@ -61,7 +63,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     if workers < 1:
         raise OptimizeError(f"--workers {workers} must be at least 1")
     storage = open_storage(storage_url, must_exist=True)
-    results = [load_result(storage, name) for name in studies]
+    results = [r for name in studies for r in load_results(storage, name, xis)]
     usable = [r for r in results if "best_design" in r.extra]
     if not usable:
         raise OptimizeError("none of the studies has a finished design yet; run tumblebot optimize first")

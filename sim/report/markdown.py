@@ -43,8 +43,10 @@ def render_markdown(results: list[StudyResult], reference: StudyResult, task: st
     for r in results:
         batch = f"{r.config.batch}" + (f" (screen {r.config.screen_batch})" if r.config.screen_batch != r.config.batch
                                        else "")
-        out.append(f"| `{r.name}` | {r.objective.describe()} | {r.config.recipe} | {batch} | {len(r.trials)} | "
-                   f"{r.episodes} | {r.best_trial if r.best_trial is not None else 'none'} |")
+        spent = f"{r.episodes}" if r.front_of is None else f"{r.episodes} (the front study's, shared)"
+        described = r.objective.describe() + ("" if r.front_of is None else f", read from front study `{r.front_of}`")
+        out.append(f"| `{r.name}` | {described} | {r.config.recipe} | {batch} | {len(r.trials)} | "
+                   f"{spent} | {r.best_trial if r.best_trial is not None else 'none'} |")
     out += ["", f"## Table 3.1 equivalent: optimum per study (R on `{task}`)", "",
             "| study | ξ | x | y | z | l | R | 95 % CI | e (W/m) | p vs reference | thesis x, y, z, l | thesis R | "
             "thesis e | thesis p |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -96,6 +98,7 @@ def render_markdown(results: list[StudyResult], reference: StudyResult, task: st
             "![best design vs trial](best_design_vs_trial.png)", "",
             "![one-parameter slices](slices.png)", "",
             "![e(w) across the bounds](energy.png)", "",
+            *(["![the front: R against e(w)](front.png)", ""] if "front" in plots else []),
             "## Compared with the thesis", ""]
     out += _findings(data, reference, task)
     return "\n".join(out) + "\n"

@@ -101,6 +101,49 @@ def _plot_energy(plt: Any, reference: StudyResult) -> Any:
     return fig
 
 
+def _plot_front(plt: Any, results: list[StudyResult]) -> Any:
+    """Each front study: every design's mean R against its exact e(w), the front of its
+    full-batch designs, and the optimum of each ξ on its iso-objective curve R = c·(e+1)^ξ."""
+    fronts: dict[str, list[StudyResult]] = {}
+    for r in results:
+        if r.front_of is not None:
+            fronts.setdefault(r.front_of, []).append(r)
+    fig, axes = plt.subplots(1, len(fronts), figsize=(6.5 * len(fronts), 4.5), squeeze=False)
+    for ax, (name, rows) in zip(axes[0], fronts.items(), strict=True):
+        weights = rows[0].objective.weights
+        trials = {t["number"]: t for t in rows[0].trials}
+        S = {n: sum(weights[k] * v for k, v in t["mean_R"].items() if k in weights) for n, t in trials.items()}
+        ax.scatter([trials[n]["e"] for n in S], list(S.values()), s=8, alpha=0.35, color="C0",
+                   label=f"trial, on its {rows[0].config.screen_batch}-episode batch")
+        full = [(trials[n]["e"], float(np.mean(rows[0].extra["full_R"][n]))) for n in rows[0].extra.get("full_R", {})
+                if n in trials]
+        if full:
+            ax.scatter(*zip(*full, strict=True), s=30, color="C2", label=f"full {rows[0].config.batch}-episode batch")
+            front, best = [], -math.inf
+            for e, R in sorted(full):
+                if best < R:
+                    front.append((e, R))
+                    best = R
+            ax.step(*zip(*front, strict=True), where="post", color="C2", lw=1, label="front (full batches)")
+        es = np.linspace(min(t["e"] for t in trials.values()), max(t["e"] for t in trials.values()), 100)
+        for i, r in enumerate(rows):
+            if r.best_trial is None or r.best_trial not in trials:
+                continue
+            e0 = trials[r.best_trial]["e"]
+            R0 = S[r.best_trial] if r.best_trial not in rows[0].extra.get("full_R", {}) else \
+                float(np.mean(rows[0].extra["full_R"][r.best_trial]))
+            ax.plot(e0, R0, marker="*", ms=14, color=f"C{3 + i}", ls="none", label=f"optimum, ξ = {r.xi_label}")
+            xi = r.objective.xi
+            if math.isfinite(xi) and xi > 0:
+                ax.plot(es, R0 * ((es + 1.0) / (e0 + 1.0)) ** xi, color=f"C{3 + i}", ls=":", lw=1)
+        ax.set_ylim(min(0.0, *S.values()) if S else 0.0, 1.0)
+        ax.set_xlabel("e(w) (W/m, exact)")
+        ax.set_ylabel("mean R (weighted over tasks)")
+        ax.set_title(f"{name}: R against e(w); dotted: equal objective through each optimum", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+    return fig
+
+
 def draw_plots(results: list[StudyResult], reference: StudyResult, slices: dict[str, Any], out: Path) -> dict[str, str]:
     """Draw the report's figures into ``out``; returns name → file."""
     import matplotlib
@@ -114,6 +157,8 @@ def draw_plots(results: list[StudyResult], reference: StudyResult, slices: dict[
         "slices": _plot_slices(plt, reference, slices),
         "energy": _plot_energy(plt, reference),
     }
+    if any(r.front_of is not None for r in results):
+        figures["front"] = _plot_front(plt, results)
     for name, fig in figures.items():
         fig.tight_layout()
         fig.savefig(out / f"{name}.png", dpi=110)

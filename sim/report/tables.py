@@ -19,11 +19,13 @@ from tumblebot.sim.optimize import (
     best_candidate,
     episode_count,
     format_xi,
+    front_optima,
     full_batch_results,
     load_config,
     load_study,
     promotions,
     study_controllers,
+    value_at,
 )
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.stats import mean_ci95
@@ -87,6 +89,8 @@ class StudyResult:
     best_trial: int | None = None
     study_value: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    #: for one ξ read from a front study: that study's name (its episodes are shared)
+    front_of: str | None = None
 
     @property
     def xi_label(self) -> str:
@@ -138,6 +142,16 @@ class Evaluator:
 
 
 def load_result(storage: Any, name: str) -> StudyResult:
+    """A single-ξ study read back (a front study is refused: use :func:`load_results`)."""
+    results = load_results(storage, name)
+    if len(results) != 1 or results[0].front_of is not None:
+        raise OptimizeError(f"study {name!r} is a front study; read it with load_results(storage, name, xis)")
+    return results[0]
+
+
+def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None) -> list[StudyResult]:
+    """A study read back: one result, or for a front study one per ``ξ`` of ``xis`` (default
+    the ξ it was made for), each with the optimum :func:`front_optima` reads for that ξ."""
     from optuna.trial import TrialState
 
     study = load_study(storage, name)
@@ -145,22 +159,47 @@ def load_result(storage: Any, name: str) -> StudyResult:
     if config is None:
         raise OptimizeError(f"study {name!r} was not made by tumblebot optimize")
     objective = config.objective()
+    if xis is not None and not objective.front:
+        raise OptimizeError(f"--xi reads optima from front studies (optimize --front); study {name!r} was made "
+                            f"for ξ = {format_xi(objective.xi)} alone")
     tasks = [t for t, w in objective.weights.items() if w > 0]
     trials = []
     for t in study.get_trials(deepcopy=False):
         if t.state != TrialState.COMPLETE or "infeasible" in t.user_attrs:
             continue
-        trials.append({"number": t.number, "value": t.value, "params": dict(t.params),
+        trials.append({"number": t.number, "value": t.value, "params": dict(t.params), "e": t.user_attrs.get("e"),
+                       "mean_R": t.user_attrs.get("mean_R", {}),
                        "batch": t.user_attrs.get("batch", 0), "datetime": t.datetime_complete})
-    best = best_candidate(study)
-    result = StudyResult(name, config, objective, tasks, trials, episode_count(study))
+    episodes = episode_count(study)
     full = sorted(full_batch_results(study), key=lambda c: c.trial)
-    result.extra["full_batch"] = [(c.trial, c.value) for c in full]
-    result.extra["promoted"] = sorted(promotions(study))
-    if best is not None:
-        result.best_trial, result.study_value = best.trial, best.value
-        result.extra["best_design"] = best.design
-    return result
+    promoted = sorted(promotions(study))
+    if not objective.front:
+        result = StudyResult(name, config, objective, tasks, trials, episodes)
+        result.extra["full_batch"] = [(c.trial, c.value) for c in full]
+        result.extra["promoted"] = promoted
+        best = best_candidate(study)
+        if best is not None:
+            result.best_trial, result.study_value = best.trial, best.value
+            result.extra["best_design"] = best.design
+        return [result]
+    out = []
+    optima = front_optima(study, xis or objective.front)
+    for xi in xis or objective.front:
+        at = objective.at(xi)
+        # a trial's value is its ξ = 0 objective (mean weighted R); the thesis wrapper divides it
+        seen = [{**t, "value": -t["e"] if math.isinf(xi) else t["value"] / (t["e"] + 1.0) ** xi} for t in trials
+                if t["e"] is not None and t["value"] is not None]
+        result = StudyResult(f"{name} @ ξ={format_xi(xi)}", config, at, tasks, seen, episodes, front_of=name)
+        result.extra["full_batch"] = [(c.trial, value_at(c, at)) for c in full]
+        result.extra["full_R"] = {c.trial: np.sum([objective.weights[k] * np.asarray(v) for k, v in c.R.items()],
+                                                  axis=0).tolist() for c in full}
+        result.extra["promoted"] = promoted
+        if xi in optima:
+            best = optima[xi]
+            result.best_trial, result.study_value = best.trial, best.value
+            result.extra["best_design"] = best.design
+        out.append(result)
+    return out
 
 
 def common_controller(results: list[StudyResult], controller: str | None, servo: Servo | None

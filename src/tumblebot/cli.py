@@ -383,11 +383,19 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
         format_xi,
         parse_tasks,
         parse_xi,
+        parse_xi_list,
         study_controllers,
     )
     from tumblebot.sim.policy import sha256_of
 
-    objective = Objective(parse_tasks(args.tasks), parse_xi(args.xi), args.variant)
+    if args.front is not None and args.xi is not None:
+        raise OptimizeError("give --xi or --front, not both (a front study serves every ξ of its list)")
+    if args.front is not None:
+        objective = Objective(parse_tasks(args.tasks), 0.0, args.variant, parse_xi_list(args.front))
+        if not any(math.isfinite(x) for x in objective.front):
+            raise OptimizeError("--front needs a finite ξ (ξ = inf alone costs no episodes: use --xi inf)")
+    else:
+        objective = Objective(parse_tasks(args.tasks), parse_xi(args.xi or "0"), args.variant)
     batch = args.batch
     if objective.tasks == [] and batch is None and args.recipe != "thesis":
         batch = 1  # ξ = inf: e(w) alone, no episodes, so no batch to choose
@@ -406,7 +414,8 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
     policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
                             controller=controller, servo=servo)
-    name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + f"-xi{format_xi(objective.xi)}"
+    suffix = "-front" if objective.front else f"-xi{format_xi(objective.xi)}"
+    name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + suffix
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
     return objective, recipe, servo, controllers, config, name, storage_url
 
@@ -434,6 +443,7 @@ def _optimize(args: argparse.Namespace) -> int:
         StopFlag,
         StopRequested,
         format_best,
+        format_front,
         load_config,
         open_storage,
         open_study,
@@ -449,7 +459,9 @@ def _optimize(args: argparse.Namespace) -> int:
         if args.startup is None and stored is not None and stored.startup != recipe.startup:
             recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
         print(f"study {name!r} in {storage_url}: {objective.describe()}, recipe {recipe.name} "
-              f"({recipe.trials} trials, {recipe.startup} random then GP-logEI, batch {recipe.batch}"
+              f"({recipe.trials} trials, {recipe.startup} random then "
+              + ("a GP on R with e(w) exact" if recipe.name == "efficient" or objective.front else "GP-logEI")
+              + f", batch {recipe.batch}"
               + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
               file=sys.stderr)
         bar, show = _optimize_bar(recipe.trials, args.quiet)
@@ -468,7 +480,7 @@ def _optimize(args: argparse.Namespace) -> int:
                 runner.close()
         bar.close()
     print(f"{result.done} trials in study {name!r} ({result.episodes} episodes this run)")
-    print(format_best(result.best, objective))
+    print(format_front(study) if objective.front else format_best(result.best, objective))
     if args.json is not None:
         from tumblebot.sim.optimize import study_summary, to_json
 
@@ -490,10 +502,13 @@ def _report(args: argparse.Namespace) -> int:
     servo = _servo(args) if given else None  # else the studies' own
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
+    from tumblebot.sim.optimize import parse_xi_list
+
+    xis = parse_xi_list(args.xi) if args.xi is not None else None
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
                         controller=args.gait or ("thesis-policy" if args.thesis_policies else None), servo=servo,
-                        allow_servo_mismatch=args.allow_servo_mismatch)
+                        allow_servo_mismatch=args.allow_servo_mismatch, xis=xis)
     print(f"wrote {path}")
     return 0
 
@@ -733,7 +748,11 @@ def _add_optimize_command(sub: Subcommands) -> None:
                     "default); running the same command again resumes a study, and several processes pointed at "
                     "one study cooperate on it. Ctrl-C stops cleanly.")
     p.add_argument("--tasks", required=True, help="weighted tasks, e.g. nav-flat=1,incline=0.5 (a bare name weighs 1)")
-    p.add_argument("--xi", default="0", help="energy exponent xi >= 0, or inf to minimise e(w) alone (default 0)")
+    p.add_argument("--xi", default=None, help="energy exponent xi >= 0, or inf to minimise e(w) alone (default 0)")
+    p.add_argument("--front", nargs="?", const="0,1,3,inf", default=None, metavar="XIS",
+                   help="instead of one xi, search the front of high R and low e(w) for every xi in XIS (default "
+                        "0,1,3,inf): a GP on R with e(w) exact, its acquisition serving each finite xi in turn; "
+                        "report --xi reads each optimum from it")
     p.add_argument("--trials", type=int, help="designs to evaluate in the study (all workers together)")
     p.add_argument("--batch", type=int, help="episodes per task for a design's full evaluation (thesis: 240)")
     p.add_argument("--startup", type=int, help="random designs before the GP (default: half the trials, at most 20)")
@@ -744,7 +763,8 @@ def _add_optimize_command(sub: Subcommands) -> None:
     p.add_argument("--episode-budget", type=int, help="also stop once the study has spent this many episodes")
     p.add_argument("--storage", help="Optuna storage URL, e.g. sqlite:///study.db or postgresql://user@host/db "
                                      "(default $TUMBLEBOT_STORAGE, else sqlite:///tumblebot-optuna.db)")
-    p.add_argument("--study", help="study name (default from the tasks and xi, e.g. nav-flat=1-xi3)")
+    p.add_argument("--study", help="study name (default from the tasks and xi, e.g. nav-flat=1-xi3, or "
+                                   "nav-flat=1-front)")
     p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the episodes and start-up designs (default 0)")
     p.add_argument("--variant", choices=("thesis", "monotone"), default="thesis",
@@ -774,6 +794,9 @@ def _add_report_command(sub: Subcommands) -> None:
     p.add_argument("--study", action="append", required=True,
                    help="study name; repeat for several (e.g. one per xi, one per task)")
     p.add_argument("-o", "--output", type=Path, required=True, help="report folder (created)")
+    p.add_argument("--xi", default=None, metavar="XIS",
+                   help="for front studies (optimize --front): the xi values to read an optimum for, e.g. "
+                        "0,1,3,inf (default: the study's own list); one Table 3.1 row each")
     p.add_argument("--episodes", type=int, help="episodes per task for every re-evaluation (default: the "
                                                 "studies' full batch)")
     p.add_argument("--slice-points", type=int, default=7, help="points per one-parameter slice (default 7)")

@@ -26,6 +26,7 @@ from tumblebot.sim.optimize import (
     episode_count,
     parse_tasks,
     parse_xi,
+    promotion_scores,
     promotions,
     screen_scores,
 )
@@ -188,10 +189,10 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
         assert p["R"]["nav-flat"][:4] == study.trials[number].user_attrs["R"]["nav-flat"]
     best = best_candidate(study)
     assert best is not None and best.batch == 60 and best.trial in promoted
-    scores = screen_scores(study, Objective({"nav-flat": 1.0}, 3.0))
+    scores = promotion_scores(study, Objective({"nav-flat": 1.0}, 3.0), 3.0)
     assert set(scores) == {t.number for t in screened}
     top = max(scores, key=lambda n: scores[n])
-    assert top in promoted  # the most promising screened design got its full batch before the end
+    assert top in promoted  # the most promising design (GP posterior) got its full batch before the end
 
 
 # ------------------------------------------------------------------ bad input
@@ -469,7 +470,7 @@ def test_that_a_study_made_before_controllers_were_recorded_still_loads_as_polic
               "--study", "old", "--quiet").returncode == 0
     study = load(tmp_path / "old.db", "old")
     raw = dict(study.user_attrs["tumblebot"])
-    for key in ("controller", "motor_model", "stall_torque"):
+    for key in ("controller", "motor_model", "stall_torque", "front"):
         raw.pop(key)
     study.set_user_attr("tumblebot", raw)  # as a study of the last release stored it
     config = load_config(load(tmp_path / "old.db", "old"))

@@ -1,0 +1,295 @@
+"""A Gaussian process on ``R`` with ``e(w)`` known: the sampler of the efficient recipe and
+of front studies.
+
+Only ``R`` costs episodes; ``e(w)`` is exact and free. So instead of fitting a GP to the
+noisy objective ``R/(e+1)^ξ`` (Optuna's ``GPSampler``), this fits one to the weighted mean
+``S(w) = Σ_i λ_i·R_i(w)`` alone and divides by the exact ``(e+1)^ξ`` afterwards:
+
+* the surface the GP learns is smooth and bounded (``R`` is a distance ratio), and the same
+  fit serves every ``ξ``, which is what lets one study answer ``ξ = 0, 1, 3`` at once
+  (:data:`FRONT` studies);
+* each trial's noise is its own: the variance of its batch mean, ``s²/n`` (with ``s²``
+  shrunk toward the pooled within-batch variance, since 4 episodes estimate it poorly). A
+  4-episode screening batch and a 240-episode full batch are then low- and high-fidelity
+  observations of the same ``S``, weighted as such;
+* the acquisition is expected improvement of ``S/(e+1)^ξ`` over the best posterior mean,
+  maximised over random feasible designs and local perturbations of the best ones;
+  designs other workers are still evaluating enter as fantasies at the posterior mean
+  ("kriging believer"), so two workers do not pick the same design.
+
+Everything here is NumPy and SciPy; it uses only Optuna's public sampler interface.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import optuna
+from optuna.trial import TrialState
+from scipy import optimize as sopt
+from scipy import stats
+
+from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.power import energy_per_metre
+
+#: The lower and upper bounds of the design box, and its span, as arrays in PARAMETERS order.
+LOW = np.array([BOUNDS[n][0] for n in PARAMETERS])
+SPAN = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
+
+#: Pseudo-episodes of the pooled within-batch variance mixed into each trial's own.
+VARIANCE_PRIOR_EPISODES = 4.0
+
+
+def to_unit(X: np.ndarray) -> np.ndarray:
+    return np.asarray((np.asarray(X, dtype=float) - LOW) / SPAN)
+
+
+def from_unit(U: np.ndarray) -> np.ndarray:
+    return np.asarray(LOW + np.clip(U, 0.0, 1.0) * SPAN)
+
+
+def feasible(X: np.ndarray) -> np.ndarray:
+    """Rows (metres) whose legs can lift the body past its balance point (``l >= r``)."""
+    return np.asarray(X[:, 3] >= np.hypot(X[:, 1] / 2.0, X[:, 2] / 2.0))
+
+
+def energies(X: np.ndarray) -> np.ndarray:
+    """``e(w)`` of each row (metres); exact."""
+    return np.array([energy_per_metre(Design(*row)) for row in X])
+
+
+def energy_scale(e: np.ndarray, xi: float) -> np.ndarray:
+    """``(e + 1)^ξ``: what the thesis objective divides ``R`` by."""
+    return np.asarray((e + 1.0) ** xi, dtype=float)
+
+
+# --------------------------------------------------------------------------- the GP
+def _matern52(A: np.ndarray, B: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    d = np.sqrt(np.maximum((((A[:, None, :] - B[None, :, :]) / lengths) ** 2).sum(-1), 0.0))
+    s = math.sqrt(5.0) * d
+    return np.asarray((1.0 + s + s * s / 3.0) * np.exp(-s))
+
+
+@dataclass
+class Hyper:
+    """The GP's hyperparameters: ARD length scales (unit cube), signal variance, extra noise."""
+
+    lengths: np.ndarray
+    amplitude: float
+    nugget: float
+
+    def pack(self) -> np.ndarray:
+        return np.asarray(np.log(np.concatenate([self.lengths, [self.amplitude, self.nugget]])))
+
+    @classmethod
+    def unpack(cls, v: np.ndarray) -> Hyper:
+        w = np.exp(v)
+        return cls(np.asarray(w[:4]), float(w[4]), float(w[5]))
+
+
+#: log-space bounds of (4 length scales, amplitude, nugget) for the marginal-likelihood fit.
+_HYPER_BOUNDS = [(math.log(0.05), math.log(4.0))] * 4 + [(math.log(1e-4), math.log(1.0)),
+                                                        (math.log(1e-7), math.log(1e-2))]
+
+
+class RModel:
+    """A GP on noisy batch means ``y`` at unit-cube designs ``U`` with known noise variances.
+
+    The constant mean is the precision-weighted mean of ``y``; length scales, signal
+    variance and an extra noise term are fitted by maximum marginal likelihood: from two
+    starts (short and long length scales) when fitted afresh, or warm-started from ``start``
+    (a few L-BFGS steps suffice between consecutive trials)."""
+
+    def __init__(self, U: np.ndarray, y: np.ndarray, noise: np.ndarray, start: Hyper | None = None) -> None:
+        self.U, self.y, self.noise = np.asarray(U, float), np.asarray(y, float), np.asarray(noise, float)
+        self.mean = float(np.sum(self.y / self.noise) / np.sum(1.0 / self.noise))
+        self.hyper = self._fit(start)
+        self._factor(self.U, self.y, self.noise)
+
+    def _nll(self, v: np.ndarray) -> float:
+        h = Hyper.unpack(v)
+        K = h.amplitude * _matern52(self.U, self.U, h.lengths) + np.diag(self.noise + h.nugget)
+        try:
+            L = np.linalg.cholesky(K)
+        except np.linalg.LinAlgError:
+            return 1e10
+        r = self.y - self.mean
+        alpha = np.linalg.solve(L.T, np.linalg.solve(L, r))
+        return float(0.5 * r @ alpha + np.log(np.diag(L)).sum())
+
+    def _fit(self, start: Hyper | None) -> Hyper:
+        amplitude = float(max(np.var(self.y), 1e-3))
+        starts = [start] if start is not None else [Hyper(np.full(4, ls), amplitude, 1e-5) for ls in (0.2, 0.6)]
+        best: Any = None
+        for h in starts:
+            v0 = np.clip(h.pack(), [b[0] for b in _HYPER_BOUNDS], [b[1] for b in _HYPER_BOUNDS])
+            res = sopt.minimize(self._nll, v0, method="L-BFGS-B", bounds=_HYPER_BOUNDS,
+                                options={"maxiter": 15 if start is not None else 50})
+            if best is None or res.fun < best.fun:
+                best = res
+        return Hyper.unpack(best.x)
+
+    def _factor(self, U: np.ndarray, y: np.ndarray, noise: np.ndarray) -> None:
+        h = self.hyper
+        K = h.amplitude * _matern52(U, U, h.lengths) + np.diag(noise + h.nugget)
+        self._L = np.linalg.cholesky(K + 1e-10 * np.eye(len(U)))
+        self._Ufit, self._yfit, self._nfit = U, y, noise
+        self._alpha = np.linalg.solve(self._L.T, np.linalg.solve(self._L, y - self.mean))
+
+    def with_fantasies(self, U_pending: np.ndarray) -> RModel:
+        """This model conditioned on pending designs observed at its own mean (no refit)."""
+        if len(U_pending) == 0:
+            return self
+        mu, _ = self.predict(U_pending)
+        clone = object.__new__(RModel)
+        clone.__dict__.update(self.__dict__)
+        clone._factor(np.vstack([self._Ufit, U_pending]), np.concatenate([self._yfit, mu]),
+                      np.concatenate([self._nfit, np.full(len(U_pending), float(np.median(self.noise)))]))
+        return clone
+
+    def predict(self, Uq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and standard deviation of ``S`` (the noise-free surface)."""
+        h = self.hyper
+        Ks = h.amplitude * _matern52(np.asarray(Uq, float), self._Ufit, h.lengths)
+        mu = self.mean + Ks @ self._alpha
+        v = np.linalg.solve(self._L, Ks.T)
+        var = np.maximum(h.amplitude - (v * v).sum(0), 1e-12)
+        return mu, np.sqrt(var)
+
+
+# --------------------------------------------------------------------------- observations
+@dataclass
+class Observation:
+    """One design's episodes: ``S`` of each episode (``Σ λ_i R_i``), and its energy."""
+
+    number: int
+    design: np.ndarray  # metres, PARAMETERS order
+    S: np.ndarray
+    e: float
+
+
+def observations(study: optuna.Study, weights: dict[str, float]) -> list[Observation]:
+    """Every feasible finished trial with its episodes (a promoted trial's full batch)."""
+    from tumblebot.sim.optimize.trials import _is_infeasible, promotions
+
+    promoted = promotions(study)
+    out = []
+    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+        R = promoted[t.number]["R"] if t.number in promoted else t.user_attrs.get("R")
+        if _is_infeasible(t) or not R or "e" not in t.user_attrs:
+            continue
+        S = sum(weights[task] * np.asarray(R[task], float) for task in weights if task in R)
+        design = np.array([t.params[n] for n in PARAMETERS])
+        out.append(Observation(t.number, design, np.asarray(S), float(t.user_attrs["e"])))
+    return out
+
+
+def batch_noise(obs: Sequence[Observation]) -> np.ndarray:
+    """The variance of each observation's batch mean, its own ``s²`` shrunk toward the pooled one."""
+    n = np.array([len(o.S) for o in obs], float)
+    within = np.array([float(np.var(o.S, ddof=1)) if len(o.S) > 1 else 0.0 for o in obs])
+    dof = np.maximum(n - 1.0, 0.0)
+    pooled = float((within * dof).sum() / dof.sum()) if dof.sum() > 0 else 0.05
+    pooled = max(pooled, 1e-4)
+    s2 = (within * dof + VARIANCE_PRIOR_EPISODES * pooled) / (dof + VARIANCE_PRIOR_EPISODES)
+    return np.asarray(s2 / n)
+
+
+def fit(obs: Sequence[Observation], start: Hyper | None = None) -> RModel:
+    U = to_unit(np.array([o.design for o in obs]))
+    y = np.array([float(np.mean(o.S)) for o in obs])
+    return RModel(U, y, batch_noise(obs), start)
+
+
+def posterior_objective(model: RModel, obs: Sequence[Observation], xi: float) -> dict[int, float]:
+    """Each observed design's posterior-mean objective ``E[S]/(e+1)^ξ`` by trial number."""
+    if not obs:
+        return {}
+    mu, _ = model.predict(to_unit(np.array([o.design for o in obs])))
+    scale = energy_scale(np.array([o.e for o in obs]), xi)
+    return {o.number: float(m / s) for o, m, s in zip(obs, mu, scale, strict=True)}
+
+
+def propose(model: RModel, obs: Sequence[Observation], xi: float, rng: np.random.Generator,
+            pending: np.ndarray | None = None, n_random: int = 1500, n_local: int = 600) -> np.ndarray:
+    """The feasible design (metres) of highest expected improvement of ``S/(e+1)^ξ``."""
+    if pending is not None and len(pending):
+        model = model.with_fantasies(to_unit(pending))
+    now = posterior_objective(model, obs, xi)
+    best_now = max(now.values())
+    observed = np.array([o.design for o in obs])
+    top = observed[np.argsort([-now[o.number] for o in obs])[:8]]
+    local = to_unit(np.repeat(top, n_local // len(top) + 1, axis=0)[:n_local])
+    local = local + rng.normal(0.0, 0.06, local.shape) * rng.choice([0.25, 1.0], size=(len(local), 1))
+    cand = from_unit(np.vstack([rng.uniform(0.0, 1.0, (n_random, 4)), local]))
+    cand = cand[feasible(cand)]
+    mu, sd = model.predict(to_unit(cand))
+    scale = energy_scale(energies(cand), xi)
+    m, s = mu / scale, np.maximum(sd / scale, 1e-12)
+    z = (m - best_now) / s
+    ei = s * (z * stats.norm.cdf(z) + stats.norm.pdf(z))
+    return np.asarray(cand[int(np.argmax(ei))])
+
+
+def minimum_energy_design(rng: np.random.Generator, n: int = 4000) -> np.ndarray:
+    """The feasible design of least ``e(w)`` (metres): free, no episodes (``ξ = ∞``)."""
+    cand = from_unit(rng.uniform(0.0, 1.0, (n, 4)))
+    cand = cand[feasible(cand)]
+    e = energies(cand)
+    x0 = to_unit(cand[int(np.argmin(e))])
+
+    def penalised(u: np.ndarray) -> float:
+        w = from_unit(u)
+        slack = w[3] - math.hypot(w[1] / 2.0, w[2] / 2.0)
+        return energy_per_metre(Design(*w)) + (1e3 * -slack if slack < 0 else 0.0)
+
+    res = sopt.minimize(penalised, x0, method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-9, "maxiter": 800})
+    best = from_unit(res.x)
+    if not feasible(best[None, :])[0] or energy_per_metre(Design(*best)) > e.min():
+        best = cand[int(np.argmin(e))]
+    return np.asarray(best)
+
+
+# --------------------------------------------------------------------------- the sampler
+class RSampler(optuna.samplers.BaseSampler):
+    """An Optuna sampler (public ``BaseSampler`` interface) proposing designs from :class:`RModel`.
+
+    ``targets``: the ``ξ`` values the acquisition serves; trial ``k`` aims at
+    ``targets[k % len(targets)]`` (a single-objective study has one). Until ``startup``
+    feasible designs have results, and for any parameter it is asked about alone, it falls
+    back to ``independent`` (the seeded start-up sampler). The length scales are refitted
+    from scratch every 10th fit and warm-started in between."""
+
+    def __init__(self, weights: dict[str, float], targets: Sequence[float], startup: int,
+                 independent: optuna.samplers.BaseSampler, seed: int) -> None:
+        self.weights, self.targets, self.startup = dict(weights), [float(x) for x in targets], startup
+        self.independent = independent
+        self.rng = np.random.default_rng(seed)
+        self.hyper: Hyper | None = None
+        self.fits = 0
+
+    def infer_relative_search_space(self, study: optuna.Study, trial: optuna.trial.FrozenTrial
+                                    ) -> dict[str, optuna.distributions.BaseDistribution]:
+        return {n: optuna.distributions.FloatDistribution(*BOUNDS[n]) for n in PARAMETERS}
+
+    def sample_relative(self, study: optuna.Study, trial: optuna.trial.FrozenTrial,
+                        search_space: dict[str, optuna.distributions.BaseDistribution]) -> dict[str, Any]:
+        obs = observations(study, self.weights)
+        if len(obs) < max(self.startup, 3):
+            return {}
+        model = fit(obs, self.hyper if self.fits % 10 else None)
+        self.hyper, self.fits = model.hyper, self.fits + 1
+        pending = np.array([[t.params[n] for n in PARAMETERS] for t in
+                            study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+                            if t.number != trial.number and all(n in t.params for n in PARAMETERS)])
+        xi = self.targets[trial.number % len(self.targets)]
+        w = propose(model, obs, xi, self.rng, pending.reshape(-1, 4))
+        return dict(zip(PARAMETERS, (float(v) for v in w), strict=True))
+
+    def sample_independent(self, study: optuna.Study, trial: optuna.trial.FrozenTrial, param_name: str,
+                           param_distribution: optuna.distributions.BaseDistribution) -> Any:
+        return self.independent.sample_independent(study, trial, param_name, param_distribution)

@@ -1,0 +1,158 @@
+"""The GP on R with e(w) exact, and front studies: one study that answers every ξ."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+
+from tumblebot.sim.design import Design
+from tumblebot.sim.optimize import (
+    Objective,
+    OptimizeError,
+    Recipe,
+    front_optima,
+    make_sampler,
+    parse_xi_list,
+    surrogate,
+)
+from tumblebot.sim.power import energy_per_metre
+
+
+def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
+
+
+def _truth(W: np.ndarray) -> np.ndarray:
+    U = surrogate.to_unit(W)
+    return np.asarray(0.9 - 0.6 * (U[:, 0] - 0.3) ** 2 - 0.4 * (U[:, 3] - 0.6) ** 2)
+
+
+def _observations(rng: np.random.Generator, n: int, full_every: int = 10) -> list[surrogate.Observation]:
+    out: list[surrogate.Observation] = []
+    while len(out) < n:
+        w = surrogate.from_unit(rng.uniform(0.0, 1.0, 4))
+        if not surrogate.feasible(w[None, :])[0]:
+            continue
+        episodes = 120 if len(out) % full_every == 0 else 4
+        S = _truth(w[None, :])[0] + rng.normal(0.0, 0.15, episodes)
+        out.append(surrogate.Observation(len(out), w, S, energy_per_metre(Design(*w))))
+    return out
+
+
+# ------------------------------------------------------------------ the GP on R
+def test_that_the_gp_on_r_learns_a_smooth_surface_from_noisy_screening_batches() -> None:
+    rng = np.random.default_rng(0)
+    obs = _observations(rng, 120)
+    model = surrogate.fit(obs)
+    W = surrogate.from_unit(rng.uniform(0.0, 1.0, (600, 4)))
+    W = W[surrogate.feasible(W)]  # where designs are proposed and judged
+    mu, sd = model.predict(surrogate.to_unit(W))
+    rmse = float(np.sqrt(np.mean((mu - _truth(W)) ** 2)))
+    assert rmse < 0.05  # one 4-episode batch alone has a standard error of 0.075
+    assert float(np.mean(np.abs(mu - _truth(W)) < 3 * sd + 0.01)) > 0.9  # its uncertainty is honest
+
+
+def test_that_each_batch_is_weighted_by_its_own_noise() -> None:
+    rng = np.random.default_rng(1)
+    obs = _observations(rng, 40)
+    noise = surrogate.batch_noise(obs)
+    full = [i for i, o in enumerate(obs) if len(o.S) == 120]
+    screen = [i for i, o in enumerate(obs) if len(o.S) == 4]
+    assert max(noise[full]) < min(noise[screen]) / 10  # 120 episodes outweigh 4 by about 30×
+
+
+def test_that_the_acquisition_proposes_feasible_designs_where_the_objective_is_high() -> None:
+    rng = np.random.default_rng(2)
+    obs = _observations(rng, 80)
+    model = surrogate.fit(obs)
+    for xi in (0.0, 3.0):
+        w = surrogate.propose(model, obs, xi, rng)
+        assert Design(*w).can_tumble and Design(*w).in_bounds()
+    w0 = surrogate.propose(model, obs, 0.0, rng)
+    assert _truth(w0[None, :])[0] > 0.8  # the truth peaks at 0.9
+
+
+def test_that_the_least_energy_design_is_found_without_episodes() -> None:
+    rng = np.random.default_rng(3)
+    best = surrogate.minimum_energy_design(rng)
+    W = surrogate.from_unit(rng.uniform(0.0, 1.0, (3000, 4)))
+    W = W[surrogate.feasible(W)]
+    assert Design(*best).can_tumble
+    assert energy_per_metre(Design(*best)) <= float(surrogate.energies(W).min()) + 1e-9
+
+
+def test_that_the_efficient_recipe_and_front_studies_use_the_gp_on_r() -> None:
+    eff = Recipe.make("efficient", 30, 60)
+    std = Recipe.make("standard", 30, 60)
+    one = Objective({"nav-flat": 1.0}, 3.0)
+    assert isinstance(make_sampler(eff, 0, 0, one), surrogate.RSampler)
+    assert isinstance(make_sampler(std, 0, 0, one), optuna.samplers.GPSampler)  # the thesis's GP-EI
+    front = Objective({"nav-flat": 1.0}, 0.0, front=(0.0, 1.0, 3.0, math.inf))
+    assert isinstance(make_sampler(std, 0, 0, front), surrogate.RSampler)
+    assert front.targets == (0.0, 1.0, 3.0)
+
+
+# ------------------------------------------------------------------ front studies
+def test_that_a_front_objective_has_no_single_xi_and_lists_parse() -> None:
+    assert parse_xi_list("0,1,3,inf")[:3] == (0.0, 1.0, 3.0) and math.isinf(parse_xi_list("0,1,3,inf")[3])
+    with pytest.raises(OptimizeError, match="twice"):
+        parse_xi_list("0,0")
+    with pytest.raises(OptimizeError):
+        parse_xi_list("0,-1")
+    with pytest.raises(OptimizeError, match="no single"):
+        Objective({"nav-flat": 1.0}, 3.0, front=(0.0, 3.0))
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--front", "--xi", "3"], "not both"),
+    (["--front", "inf"], "needs a finite"),
+    (["--front", "0,x"], "not a number"),
+])
+def test_that_bad_front_input_gets_one_clear_error_and_creates_nothing(tmp_path: Path, args: list[str],
+                                                                        message: str) -> None:
+    db = tmp_path / "f.db"
+    run = tb("optimize", "--tasks", "nav-flat", *args, "--trials", "4", "--batch", "4", "--storage",
+             f"sqlite:///{db}", "--quiet", timeout=120)
+    assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr
+    assert not db.exists()
+
+
+@pytest.mark.slow
+def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_path: Path) -> None:
+    db = tmp_path / "front.db"
+    storage = f"sqlite:///{db}"
+    run = tb("optimize", "--tasks", "nav-flat", "--front", "--recipe", "efficient", "--trials", "16", "--batch",
+             "12", "--startup", "6", "--storage", storage, "--quiet", "--json", str(tmp_path / "s.json"))
+    assert run.returncode == 0, run.stderr
+    assert "optimum of each ξ" in run.stdout and "front for ξ=0,1,3,inf" in run.stderr
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert set(summary["front"]) == {"0", "1", "3", "inf"}
+    study = optuna.load_study(study_name="nav-flat=1-front", storage=storage)
+    optima = front_optima(study, (0.0, 3.0, math.inf))
+    # ξ = inf: the study's first trial, the design of least e(w), found without episodes
+    assert optima[math.inf].trial == 0
+    assert optima[math.inf].e == min(float(t.user_attrs["e"]) for t in study.trials if "e" in t.user_attrs)
+    for xi in (0.0, 3.0):  # finite ξ: read from designs on the full batch
+        assert optima[xi].batch == 12
+    # the report: one Table 3.1 row per ξ asked for, and the front plotted
+    out = tmp_path / "report"
+    rep = tb("report", "--storage", storage, "--study", "nav-flat=1-front", "--xi", "0,3,inf", "-o", str(out),
+             "--episodes", "4", "--slice-points", "2", "--quiet")
+    assert rep.returncode == 0, rep.stderr
+    data = json.loads((out / "report.json").read_text())
+    assert [row["xi"] for row in data["table31"]] == ["0", "3", "inf"]
+    assert (out / "front.png").is_file() and "front.png" in (out / "report.md").read_text()
+    # --xi is for front studies only
+    single = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
+                "--study", "one", "--quiet")
+    assert single.returncode == 0, single.stderr
+    bad = tb("report", "--storage", storage, "--study", "one", "--xi", "0", "-o", str(tmp_path / "r2"), "--quiet")
+    assert bad.returncode == 2 and "front studies" in bad.stderr and "Traceback" not in bad.stderr
