@@ -38,6 +38,7 @@ from tumblebot.sim.optimize import (
     Objective,
     Recipe,
     StudyConfig,
+    TrialRecord,
     best_candidate,
     counted_trials,
     episode_count,
@@ -69,7 +70,7 @@ def run_recipe(objective: Objective, recipe: Recipe, seed: int, runner: EpisodeR
     best = best_candidate(study)
     if best is None:
         raise SystemExit(f"study {name} in {url} has no design on the full batch")
-    feasible = sum("infeasible" not in t.user_attrs and t.value is not None for t in study.trials)
+    feasible = sum(TrialRecord.of(t).infeasible is None and t.value is not None for t in study.trials)
     return {"recipe": recipe.name, "seed": seed, "episodes": episode_count(study), "trials": counted_trials(study),
             "feasible_designs": feasible, "design": best.design.as_tuple(), "study_value": best.value,
             "seconds": time.perf_counter() - t0}

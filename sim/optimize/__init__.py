@@ -33,7 +33,7 @@ optimum of each ``ξ`` from its full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body
 past its balance point (SPEC §3). Such trials cost no episodes; they are recorded with the
-reason in ``user_attrs["infeasible"]``, told to Optuna with the worst feasible value so far,
+reason in their :class:`TrialRecord` (``infeasible``), told to Optuna with the worst feasible value so far,
 and carry the constraint ``r - l <= 0`` so the GP sampler learns where the boundary is (a
 failed trial would be invisible to it, and it would propose the same corner again). They
 are never reported as an optimum. A NaN result is recorded as a failed, flagged trial.
@@ -74,6 +74,7 @@ from tumblebot.sim.optimize.storage import (
     PROMOTED_PREFIX,
     STUDY_KEY,
     StudyConfig,
+    TrialRecord,
     load_config,
     load_study,
     open_storage,
@@ -116,6 +117,7 @@ __all__ = [
     "StopRequested",
     "StudyConfig",
     "TrialNumberSampler",
+    "TrialRecord",
     "best_candidate",
     "bundled_policies",
     "counted_trials",

@@ -19,7 +19,7 @@ from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.objective import wrap_reward
 from tumblebot.sim.optimize.objective import Objective, OptimizeError, StopRequested
 from tumblebot.sim.optimize.recipes import Recipe
-from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, _storage_of
+from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, _storage_of
 from tumblebot.sim.optimize.trials import (
     CONSTRAINT,
     Candidate,
@@ -79,7 +79,7 @@ def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]
     from optuna.trial import TrialState
 
     trials = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-              if t.value is not None and not _is_infeasible(t) and t.user_attrs.get("R")]
+              if t.value is not None and not _is_infeasible(t) and TrialRecord.of(t).R]
     if not trials:
         return {}
     span = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
@@ -88,11 +88,11 @@ def screen_scores(study: optuna.Study, objective: Objective) -> dict[int, float]
     K = np.exp(-d2 / (2 * SMOOTHING_WIDTH ** 2))
     scores: dict[int, float] = {}
     for task in objective.tasks:
-        n = np.array([len(t.user_attrs["R"][task]) for t in trials], dtype=float)
-        mean = np.array([float(np.mean(t.user_attrs["R"][task])) for t in trials])
+        n = np.array([len(TrialRecord.of(t).R[task]) for t in trials], dtype=float)
+        mean = np.array([float(np.mean(TrialRecord.of(t).R[task])) for t in trials])
         smooth = (K * n) @ mean / (K @ n)
         for t, r in zip(trials, smooth, strict=True):
-            e = float(t.user_attrs["e"])
+            e = float(TrialRecord.of(t).e)  # type: ignore[arg-type]
             scores[t.number] = scores.get(t.number, 0.0) + objective.weights[task] * wrap_reward(
                 float(r), e, objective.xi, objective.variant)
     return scores
@@ -133,7 +133,7 @@ def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         with contextlib.suppress(Exception):
             study.set_user_attr(f"promoting:{t.number}", False)  # let it be promoted again later
         raise
-    R = {task: list(t.user_attrs["R"][task]) + more[task] for task in objective.tasks}
+    R = {task: list(TrialRecord.of(t).R[task]) + more[task] for task in objective.tasks}
     value = float(np.mean(objective.per_episode({k: np.array(v) for k, v in R.items()}, e)))
     study.set_user_attr(f"{PROMOTED_PREFIX}{t.number}", {"value": value, "batch": recipe.batch, "R": R,
                                                         "screen_value": t.value})
@@ -280,7 +280,7 @@ def _mark_interrupted(study: optuna.Study, trial: optuna.Trial) -> None:
         frozen = [t for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
                   if t.number == trial.number]
         if frozen:
-            trial.set_user_attr("interrupted", True)
+            TrialRecord.write(trial, interrupted=True)
             study.tell(trial, state=TrialState.FAIL)
 
 
@@ -291,25 +291,22 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
     from optuna.trial import TrialState
 
     design = Design(*(trial.params[n] for n in PARAMETERS))
-    trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
+    TrialRecord.write(trial, worker=f"{socket.gethostname()}:{os.getpid()}")
     trial.set_constraint(CONSTRAINT, design.pivot_radius - design.l)
     if not design.can_tumble:
-        trial.set_user_attr("infeasible", f"l={design.l:.3f} m < r={design.pivot_radius:.3f} m: the legs "
-                                          "cannot lift the body past its balance point")
+        TrialRecord.write(trial, infeasible=f"l={design.l:.3f} m < r={design.pivot_radius:.3f} m: the legs "
+                                            "cannot lift the body past its balance point")
         study.tell(trial, _imputed_value(study))
         return None, 0
     # Ctrl-C or a crash from here on: optimize() fails the trial and flags it interrupted.
     started = time.perf_counter()
     R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed, on_result)
     value = float(np.mean(per_episode))
-    trial.set_user_attr("e", e)
-    trial.set_user_attr("batch", recipe.screen_batch if objective.tasks else 0)
-    trial.set_user_attr("R", R)
-    trial.set_user_attr("mean_R", {t: float(np.mean(r)) for t, r in R.items()})
-    trial.set_user_attr("seconds", time.perf_counter() - started)
+    TrialRecord.write(trial, e=e, batch=recipe.screen_batch if objective.tasks else 0, R=R,
+                      mean_R={t: float(np.mean(r)) for t, r in R.items()}, seconds=time.perf_counter() - started)
     added = recipe.screen_batch * len(objective.tasks)
     if not math.isfinite(value):
-        trial.set_user_attr("infeasible", f"objective is {value} (NaN or infinite result)")
+        TrialRecord.write(trial, infeasible=f"objective is {value} (NaN or infinite result)")
         study.tell(trial, state=TrialState.FAIL)
         return None, added
     study.tell(trial, value)

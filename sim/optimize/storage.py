@@ -7,7 +7,7 @@ import os
 import time
 import warnings
 import weakref
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -83,6 +83,50 @@ class StudyConfig:
         mine, theirs = asdict(self), asdict(other)
         return [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
                 for k in mine if k != "startup" and mine[k] != theirs[k]]
+
+
+# --------------------------------------------------------------------------- trial records
+@dataclass(frozen=True)
+class TrialRecord:
+    """What a trial stores beside Optuna's parameters and value, typed.
+
+    Stored as the trial's user attributes under these field names (the file format: studies
+    made by earlier versions load unchanged, missing fields taking their defaults); read with
+    :meth:`of` and written with :meth:`write`, never as string keys elsewhere."""
+
+    #: each task's final-state R of every episode run so far (a screening or a full batch)
+    R: dict[str, list[float]] = field(default_factory=dict)
+    #: e(w), exact (W/m)
+    e: float | None = None
+    #: episodes per task of the trial's own batch (0 when ξ = ∞ needs none)
+    batch: int = 0
+    mean_R: dict[str, float] = field(default_factory=dict)
+    seconds: float | None = None
+    #: host:pid of the process that ran it
+    worker: str | None = None
+    #: why it has no result (the legs are too short, or a NaN objective); None when feasible
+    infeasible: str | None = None
+    #: failed by Ctrl-C or a crash mid-trial: it is redone and does not count
+    interrupted: bool = False
+
+    @classmethod
+    def of(cls, trial: optuna.trial.FrozenTrial) -> TrialRecord:
+        attrs = trial.user_attrs
+        return cls(**{f.name: attrs[f.name] for f in fields(cls) if f.name in attrs})
+
+    @staticmethod
+    def write(trial: optuna.Trial, **values: Any) -> None:
+        """Set some of the fields on a running trial (unknown names are refused)."""
+        known = {f.name for f in fields(TrialRecord)}
+        for name, value in values.items():
+            if name not in known:
+                raise TypeError(f"TrialRecord has no field {name!r}")
+            trial.set_user_attr(name, value)
+
+    @property
+    def episodes(self) -> int:
+        """Episodes the trial ran, over all tasks."""
+        return sum(len(r) for r in self.R.values())
 
 
 # --------------------------------------------------------------------------- storage

@@ -174,17 +174,19 @@ class Observation:
 
 def observations(study: optuna.Study, weights: dict[str, float]) -> list[Observation]:
     """Every feasible finished trial with its episodes (a promoted trial's full batch)."""
-    from tumblebot.sim.optimize.trials import _is_infeasible, promotions
+    from tumblebot.sim.optimize.storage import TrialRecord
+    from tumblebot.sim.optimize.trials import promotions
 
     promoted = promotions(study)
     out = []
     for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
-        R = promoted[t.number]["R"] if t.number in promoted else t.user_attrs.get("R")
-        if _is_infeasible(t) or not R or "e" not in t.user_attrs:
+        rec = TrialRecord.of(t)
+        R = promoted[t.number]["R"] if t.number in promoted else rec.R
+        if rec.infeasible is not None or not R or rec.e is None:
             continue
         S = sum(weights[task] * np.asarray(R[task], float) for task in weights if task in R)
         design = np.array([t.params[n] for n in PARAMETERS])
-        out.append(Observation(t.number, design, np.asarray(S), float(t.user_attrs["e"])))
+        out.append(Observation(t.number, design, np.asarray(S), rec.e))
     return out
 
 

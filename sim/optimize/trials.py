@@ -15,7 +15,7 @@ from tumblebot.sim.design import PARAMETERS, Design
 from tumblebot.sim.evaluate import Controller, Servo
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
-from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, load_config
+from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, load_config
 
 if TYPE_CHECKING:
     import optuna
@@ -64,7 +64,7 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
 
 # --------------------------------------------------------------------------- trials
 def _is_infeasible(t: optuna.trial.FrozenTrial) -> bool:
-    return "infeasible" in t.user_attrs
+    return TrialRecord.of(t).infeasible is not None
 
 
 def _imputed_value(study: optuna.Study) -> float:
@@ -129,16 +129,14 @@ def full_batch_results(study: optuna.Study) -> list[Candidate]:
     promoted = promotions(study)
     out: list[Candidate] = []
     for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
-        if _is_infeasible(t):
+        rec = TrialRecord.of(t)
+        if rec.infeasible is not None or rec.e is None:
             continue
         if t.number in promoted:
             p = promoted[t.number]
-            out.append(Candidate(t.number, trial_design(t), float(p["value"]), int(p["batch"]), p["R"],
-                                 float(t.user_attrs["e"])))
-        elif int(t.user_attrs.get("batch", 0)) >= config.batch or t.user_attrs.get("batch") == 0:
-            assert t.value is not None
-            out.append(Candidate(t.number, trial_design(t), float(t.value), int(t.user_attrs.get("batch", 0)),
-                                 t.user_attrs.get("R", {}), float(t.user_attrs["e"])))
+            out.append(Candidate(t.number, trial_design(t), float(p["value"]), int(p["batch"]), p["R"], rec.e))
+        elif (rec.batch >= config.batch or rec.batch == 0) and t.value is not None:
+            out.append(Candidate(t.number, trial_design(t), float(t.value), rec.batch, rec.R, rec.e))
     return out
 
 
@@ -162,11 +160,10 @@ def front_optima(study: optuna.Study, xis: tuple[float, ...]) -> dict[float, Can
     out: dict[float, Candidate] = {}
     for xi in xis:
         if math.isinf(xi):
-            moving = [Candidate(t.number, trial_design(t), -float(t.user_attrs["e"]), int(t.user_attrs["batch"]),
-                                t.user_attrs["R"], float(t.user_attrs["e"]))
-                      for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-                      if not _is_infeasible(t) and t.user_attrs.get("R")
-                      and all(float(np.mean(r)) > 0 for r in t.user_attrs["R"].values())]
+            records = [(t, TrialRecord.of(t)) for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))]
+            moving = [Candidate(t.number, trial_design(t), -rec.e, rec.batch, rec.R, rec.e) for t, rec in records
+                      if rec.infeasible is None and rec.e is not None and rec.R
+                      and all(float(np.mean(r)) > 0 for r in rec.R.values())]
             if moving:
                 out[xi] = max(moving, key=lambda c: c.value)
             continue
@@ -262,7 +259,7 @@ def study_summary(study: optuna.Study) -> dict[str, Any]:
         "trials": counted_trials(study),  #: what the terminal says: finished, infeasible and running ones
         "feasible": sum(t.state == TrialState.COMPLETE and not _is_infeasible(t) for t in trials),
         "infeasible": sum(_is_infeasible(t) for t in trials),
-        "interrupted": sum(bool(t.user_attrs.get("interrupted")) for t in trials),
+        "interrupted": sum(TrialRecord.of(t).interrupted for t in trials),
         "episodes": episode_count(study),
         "best": None if best is None else _candidate_json(best),
         **({"front": {("inf" if math.isinf(xi) else f"{xi:g}"): _candidate_json(c)
@@ -280,10 +277,9 @@ def episode_count(study: optuna.Study) -> int:
     """Episodes the study has cost so far (screening, full batches and promotions)."""
     total = 0
     for t in study.get_trials(deepcopy=False):
-        total += sum(len(r) for r in t.user_attrs.get("R", {}).values())
+        total += TrialRecord.of(t).episodes
     for number, p in promotions(study).items():
-        screened = study.trials[number].user_attrs.get("R", {})
-        total += sum(len(r) for r in p["R"].values()) - sum(len(r) for r in screened.values())
+        total += sum(len(r) for r in p["R"].values()) - TrialRecord.of(study.trials[number]).episodes
     return total
 
 

@@ -16,6 +16,7 @@ from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
     StudyConfig,
+    TrialRecord,
     best_candidate,
     episode_count,
     format_xi,
@@ -163,13 +164,13 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None) 
         raise OptimizeError(f"--xi reads optima from front studies (optimize --front); study {name!r} was made "
                             f"for ξ = {format_xi(objective.xi)} alone")
     tasks = [t for t, w in objective.weights.items() if w > 0]
-    trials = []
+    trials: list[dict[str, Any]] = []
     for t in study.get_trials(deepcopy=False):
-        if t.state != TrialState.COMPLETE or "infeasible" in t.user_attrs:
+        rec = TrialRecord.of(t)
+        if t.state != TrialState.COMPLETE or rec.infeasible is not None:
             continue
-        trials.append({"number": t.number, "value": t.value, "params": dict(t.params), "e": t.user_attrs.get("e"),
-                       "mean_R": t.user_attrs.get("mean_R", {}),
-                       "batch": t.user_attrs.get("batch", 0), "datetime": t.datetime_complete})
+        trials.append({"number": t.number, "value": t.value, "params": dict(t.params), "e": rec.e,
+                       "mean_R": rec.mean_R, "batch": rec.batch, "datetime": t.datetime_complete})
     episodes = episode_count(study)
     full = sorted(full_batch_results(study), key=lambda c: c.trial)
     promoted = sorted(promotions(study))

@@ -156,3 +156,19 @@ def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_pat
     assert single.returncode == 0, single.stderr
     bad = tb("report", "--storage", storage, "--study", "one", "--xi", "0", "-o", str(tmp_path / "r2"), "--quiet")
     assert bad.returncode == 2 and "front studies" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_that_trial_records_read_old_studies_and_refuse_unknown_fields(tmp_path: Path) -> None:
+    from tumblebot.sim.optimize import TrialRecord
+
+    study = optuna.create_study(storage=f"sqlite:///{tmp_path / 'r.db'}", study_name="r")
+    trial = study.ask({"x": optuna.distributions.FloatDistribution(0, 1)})
+    trial.set_user_attr("R", {"nav-flat": [0.5, 0.7]})  # as an earlier version wrote it: no mean_R, no worker
+    trial.set_user_attr("e", 4.0)
+    TrialRecord.write(trial, batch=2)
+    with pytest.raises(TypeError, match="no field"):
+        TrialRecord.write(trial, episodes=3)
+    study.tell(trial, 0.6)
+    rec = TrialRecord.of(study.trials[0])
+    assert rec.R == {"nav-flat": [0.5, 0.7]} and rec.e == 4.0 and rec.batch == 2 and rec.episodes == 2
+    assert rec.infeasible is None and not rec.interrupted and rec.mean_R == {}
