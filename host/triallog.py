@@ -4,8 +4,10 @@ The writer never chunks, and flushes and fsyncs after every message, so a ``kill
 any moment loses at most the message being written (SPEC §6: with default settings
 ``mcap`` loses the whole file). ``finish()`` runs in ``finally`` and writes the summary;
 a file without it is still read by :func:`read_trial`, which streams records and stops
-cleanly at a truncated tail. The logs open in Foxglove Studio (topics ``/pose``,
-``/command``, ``/telemetry``, ``/event``, ``/decision``).
+cleanly at a truncated tail. The logs open in Foxglove (topics ``/pose``, ``/command``,
+``/telemetry``, ``/event``, ``/decision``), and beside them, in Foxglove's well-known types
+(:mod:`tumblebot.host.foxglove`), the robot's transform and pose for every ``/pose``, the
+robot as a box with legs and the setpoint and start circle, so a trial plays back in 3D.
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ class TrialLogWriter:
                  on_written: Callable[[int], None] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
+        from tumblebot.host import foxglove
+
         self.path = path
         self.on_written = on_written  #: called with each message's sequence number once it is on disk
         self._file = path.open("wb")
@@ -55,29 +59,60 @@ class TrialLogWriter:
         self._channels: dict[str, int] = {}
         self._seq = 0
         self._finished = False
-        for topic, schema in SCHEMAS.items():
+        for topic, schema in {**SCHEMAS, **foxglove.SCHEMAS}.items():
             sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(topic, "json", sid)
         if metadata:
             self._writer.add_metadata("trial", {k: str(v) for k, v in metadata.items()})
+            self._write_scene(metadata)
         self._sync()
+
+    def _write_scene(self, metadata: dict[str, str]) -> None:
+        """The robot model and the setpoint markers, when the metadata has the design and setpoint."""
+        from tumblebot.host import foxglove
+
+        now = time.time()
+        try:
+            design = tuple(float(v) for v in json.loads(metadata["design"]))
+            setpoint = tuple(float(v) for v in json.loads(metadata["setpoint"]))
+            start = tuple(float(v) for v in json.loads(metadata["start"])) if "start" in metadata else None
+            radius = float(metadata["radius"]) if "radius" in metadata else None
+        except (KeyError, ValueError, TypeError):
+            return  # a log without a known design (tests, tools): our own topics only
+        if len(design) == 4 and len(setpoint) == 2:
+            self._add("/robot/model", foxglove.robot_model(now, design), now)
+            self._add("/scene", foxglove.scene(now, setpoint, radius,
+                                               start if start is not None and len(start) == 2 else None), now)
+
+    def _add(self, topic: str, data: dict[str, Any], t: float) -> int:
+        ns = int(t * 1e9)
+        self._seq += 1
+        self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, sequence=self._seq,
+                                 data=json.dumps(data, separators=(",", ":")).encode())
+        return self._seq
 
     def _sync(self) -> None:
         self._file.flush()
         os.fsync(self._file.fileno())
 
     def write(self, topic: str, data: dict[str, Any], t: float | None = None) -> int:
-        """Log one message (``t``: wall-clock s, default now). Returns its sequence number."""
+        """Log one message (``t``: wall-clock s, default now). Returns its sequence number.
+
+        A ``/pose`` also writes its Foxglove ``/tf`` and ``/robot/pose`` (the next sequence
+        numbers), in the same fsync."""
+        from tumblebot.host import foxglove
+
         if self._finished:
             raise ValueError(f"trial log {self.path} is finished")
-        ns = int((time.time() if t is None else t) * 1e9)
-        self._seq += 1
-        self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, sequence=self._seq,
-                                 data=json.dumps(data, separators=(",", ":")).encode())
+        when = time.time() if t is None else t
+        seq = self._add(topic, data, when)
+        if topic == "/pose" and len(data.get("p", ())) == 3 and len(data.get("q", ())) == 4:
+            for derived, message in foxglove.pose_messages(when, data["p"], data["q"]).items():
+                self._add(derived, message, when)
         self._sync()
         if self.on_written is not None:
-            self.on_written(self._seq)
-        return self._seq
+            self.on_written(seq)
+        return seq
 
     def finish(self) -> None:
         if self._finished:

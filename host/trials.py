@@ -188,6 +188,7 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer:
                 _set_aside(folder, index, trial, path, "host_crashed", "the host stopped during the trial")
             log = TrialLogWriter(path, {"trial": str(trial), "point": str(k), "start": json.dumps(point),
                                         "setpoint": json.dumps(plan.setpoint), "design": json.dumps(plan.design),
+                                        "radius": str(plan.radius),
                                         "policy_sha256": plan.policy_sha256}, on_written=on_logged)
             result: TrialResult | None = None
             background = BackgroundLog(log)  # the controller never waits for the disk

@@ -37,7 +37,9 @@ def test_that_a_finished_log_reads_back_in_order_with_its_metadata(tmp_path: Pat
     log = read_trial(path)
     assert log.complete and log.metadata == {"trial": "3"}
     assert [m.data["p"][0] for m in log.topic("/pose")] == list(range(50))
-    assert [m.sequence for m in log.messages] == list(range(1, 52))
+    # each /pose is followed by its Foxglove /tf and /robot/pose: 50 × 3 + 1 messages, numbered in order
+    assert [m.sequence for m in log.messages] == list(range(1, 152))
+    assert [m.topic for m in log.messages[:3]] == ["/pose", "/tf", "/robot/pose"]
 
 
 @pytest.mark.slow
