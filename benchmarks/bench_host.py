@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.controller import ControllerConfig, TrialRunner
 from tumblebot.host.link import AgentClient, load_host_key, new_key
 from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
@@ -75,7 +75,7 @@ def main() -> None:
                 assert time.monotonic() < deadline, "the agent did not start"
                 client.request_telemetry()
                 time.sleep(0.2)
-            controller = Controller(source, client, policy, (0.0, 0.0), 0.0,
+            controller = TrialRunner(source, client, policy, (0.0, 0.0), 0.0,
                                     ControllerConfig(period=0.02, steps=args.decisions, agent_timeout=5.0,
                                                      first_pose_timeout=20.0))
             results = {}

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tumblebot.host.controller import Controller, ControllerConfig, TrialResult
+from tumblebot.host.controller import ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.link import AgentClient, load_host_key
 from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import read_trial
@@ -83,7 +83,7 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral_within_one_second(
         client = _connected_client(stack)
         source = open_source(f"udp://127.0.0.1:{stack.pose_port}?body=tumbler")
         TwinPlacer(("127.0.0.1", stack.control_port)).place(0, (0.0, 0.0), 0.0)
-        controller = Controller(source, client, Forward(), (3.0, 0.0), 0.0, ControllerConfig(steps=30))
+        controller = TrialRunner(source, client, Forward(), (3.0, 0.0), 0.0, ControllerConfig(steps=30))
         results: list[TrialResult] = []
         worker = threading.Thread(target=lambda: results.append(controller.run_trial()))
         worker.start()

@@ -47,7 +47,7 @@ def _policy_path(name: str) -> Path:
 
 
 def _trial_run(args: argparse.Namespace) -> int:
-    from tumblebot.host.controller import Controller, ControllerConfig
+    from tumblebot.host.controller import ControllerConfig, TrialRunner
     from tumblebot.host.link import AgentClient, load_host_key, parse_address
     from tumblebot.host.mocap import open_source
     from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
@@ -85,7 +85,7 @@ def _trial_run(args: argparse.Namespace) -> int:
         raise
     agent = AgentClient(address, key)
     placer = TwinPlacer(twin) if twin else OperatorPlacer(source, out=say, status=say_status)
-    controller = Controller(source, agent, policy, plan.setpoint, plan.heading, config)
+    controller = TrialRunner(source, agent, policy, plan.setpoint, plan.heading, config)
 
     def on_logged(seq: int) -> None:
         if args.print_writes:

@@ -91,7 +91,7 @@ class TrialResult:
                 "stop_latency": self.stop_latency}
 
 
-class Controller:
+class TrialRunner:
     """Runs trials of one policy toward one setpoint.
 
     Args:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from tumblebot.errors import TumblebotError
-from tumblebot.host.controller import COMPLETE, Controller, ControllerConfig, TrialResult
+from tumblebot.host.controller import COMPLETE, ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.mocap import PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.design import Design
@@ -169,7 +169,7 @@ class TwinPlacer(Placer):
 
 
 # ----------------------------------------------------------------------------- running
-def run_trial_set(folder: Path, plan: TrialPlan, controller: Controller, placer: Placer,
+def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer: Placer,
                   out: Callable[[str], None] = _quiet, agent_wait: float = 300.0,
                   on_logged: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run every unfinished trial of the set. Returns the index."""
@@ -229,7 +229,7 @@ def _set_aside(folder: Path, index: dict[str, Any], trial: int, path: Path, stat
     write_json_atomic(folder / "index.json", index)
 
 
-def _wait_for_agent(controller: Controller, timeout: float, out: Callable[[str], None]) -> None:
+def _wait_for_agent(controller: TrialRunner, timeout: float, out: Callable[[str], None]) -> None:
     agent = controller.agent
     out(f"waiting for the agent at {agent.address[0]}:{agent.address[1]} (restart it, or check the network)")
     deadline = time.monotonic() + timeout

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.host.controller import Controller, ControllerConfig
+from tumblebot.host.controller import ControllerConfig, TrialRunner
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import encode_pose_datagram, open_source
 from tumblebot.host.triallog import TrialLogWriter, read_trial
@@ -62,9 +62,9 @@ class Lab:
     stop_agent: threading.Event
     agent_thread: threading.Thread
 
-    def controller(self, policy: object, **cfg: float) -> Controller:
+    def controller(self, policy: object, **cfg: float) -> TrialRunner:
         config = ControllerConfig(**{"period": 0.1, "steps": 5, **cfg})  # type: ignore[arg-type]
-        return Controller(self.source, self.client, policy, (0.2, -0.1), 0.4, config)  # type: ignore[arg-type]
+        return TrialRunner(self.source, self.client, policy, (0.2, -0.1), 0.4, config)  # type: ignore[arg-type]
 
     def kill_agent(self) -> None:
         self.stop_agent.set()
