@@ -46,6 +46,9 @@ class TrainConfig:
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used
             under another servo unless asked to.
+        design: train on this one body ``[x, y, z, l]`` (metres) instead of a new design
+            every episode: a policy retrained on a chosen robot (the reproduction's
+            retrain check); None for the bundled policies.
     """
 
     task: str = "nav-flat"
@@ -72,11 +75,22 @@ class TrainConfig:
     observation: str = "thesis"
     init_from: str | None = None
     init_from_steps: int = 0
+    design: list[float] | None = None
 
     def __post_init__(self) -> None:
+        from tumblebot.sim.design import Design
+        from tumblebot.sim.errors import DesignError
         from tumblebot.sim.tasks import get_task
 
         get_task(self.task)
+        if self.design is not None:
+            if not isinstance(self.design, list) or len(self.design) != 4 \
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in self.design):
+                raise TrainingError(f"training config design={self.design!r} must be [x, y, z, l] in metres or null")
+            try:
+                Design.from_sequence(self.design)
+            except DesignError as exc:
+                raise TrainingError(f"training config design: {exc}") from None
         for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise TrainingError(f"training config {name}={getattr(self, name)!r} must be a positive integer")

@@ -58,9 +58,12 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 def make_env(task: str, state_weight: float, progress_weight: float,
              randomization: Randomization | None = None, motor_model: str = "dc",
-             stall_torque: float = STALL_TORQUE, observation: str = "thesis") -> gym.Env[np.ndarray, np.ndarray]:
+             stall_torque: float = STALL_TORQUE, observation: str = "thesis",
+             design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
-    wraps it in :class:`ContextObservation`."""
+    wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
+    from tumblebot.sim.design import Design
+
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:
         # Ctrl-C reaches the whole process group; only the trainer handles it (it saves a
@@ -68,14 +71,14 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
                      randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
-                     stall_torque=stall_torque)
+                     stall_torque=stall_torque, design=None if design is None else Design.from_sequence(design))
     return ContextObservation(env) if observation == "context" else env
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], gym.Env[np.ndarray, np.ndarray]] = partial(
         make_env, config.task, config.state_weight, config.progress_weight, config.randomization(),
-        config.motor_model, config.stall_torque, config.observation)
+        config.motor_model, config.stall_torque, config.observation, config.design)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

@@ -63,7 +63,9 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     if workers < 1:
         raise OptimizeError(f"--workers {workers} must be at least 1")
     storage = open_storage(storage_url, must_exist=True)
-    results = [r for name in studies for r in load_results(storage, name, xis)]
+    results = [r for name in studies for r in load_results(storage, name, xis, strict=len(studies) == 1)]
+    if xis is not None and not any(r.front_of is not None for r in results):
+        raise OptimizeError("--xi reads optima from front studies (optimize --front); none of these studies is one")
     usable = [r for r in results if "best_design" in r.extra]
     if not usable:
         raise OptimizeError("none of the studies has a finished design yet; run tumblebot optimize first")

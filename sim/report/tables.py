@@ -150,9 +150,11 @@ def load_result(storage: Any, name: str) -> StudyResult:
     return results[0]
 
 
-def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None) -> list[StudyResult]:
+def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
+                 strict: bool = True) -> list[StudyResult]:
     """A study read back: one result, or for a front study one per ``ξ`` of ``xis`` (default
-    the ξ it was made for), each with the optimum :func:`front_optima` reads for that ξ."""
+    the ξ it was made for), each with the optimum :func:`front_optima` reads for that ξ.
+    ``xis`` for a single-ξ study is refused if ``strict``, else ignored."""
     from optuna.trial import TrialState
 
     study = load_study(storage, name)
@@ -160,7 +162,7 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None) 
     if config is None:
         raise OptimizeError(f"study {name!r} was not made by tumblebot optimize")
     objective = config.objective()
-    if xis is not None and not objective.front:
+    if xis is not None and not objective.front and strict:
         raise OptimizeError(f"--xi reads optima from front studies (optimize --front); study {name!r} was made "
                             f"for ξ = {format_xi(objective.xi)} alone")
     tasks = [t for t, w in objective.weights.items() if w > 0]
