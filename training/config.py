@@ -78,19 +78,11 @@ class TrainConfig:
     design: list[float] | None = None
 
     def __post_init__(self) -> None:
-        from tumblebot.sim.design import Design
-        from tumblebot.sim.errors import DesignError
         from tumblebot.sim.tasks import get_task
 
         get_task(self.task)
         if self.design is not None:
-            if not isinstance(self.design, list) or len(self.design) != 4 \
-                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in self.design):
-                raise TrainingError(f"training config design={self.design!r} must be [x, y, z, l] in metres or null")
-            try:
-                Design.from_sequence(self.design)
-            except DesignError as exc:
-                raise TrainingError(f"training config design: {exc}") from None
+            _check_design(self.design)
         for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise TrainingError(f"training config {name}={getattr(self, name)!r} must be a positive integer")
@@ -146,3 +138,17 @@ class TrainConfig:
         if not isinstance(data, dict):
             raise TrainingError(f"training config {path} must hold a JSON object")
         return cls.from_dict(data)
+
+
+def _check_design(design: object) -> None:
+    """A fixed training design: ``[x, y, z, l]`` within the bounds."""
+    from tumblebot.sim.design import Design
+    from tumblebot.sim.errors import DesignError
+
+    if not isinstance(design, list) or len(design) != 4 \
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in design):
+        raise TrainingError(f"training config design={design!r} must be [x, y, z, l] in metres or null")
+    try:
+        Design.from_sequence(design)
+    except DesignError as exc:
+        raise TrainingError(f"training config design: {exc}") from None
