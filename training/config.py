@@ -81,8 +81,7 @@ class TrainConfig:
         from tumblebot.sim.tasks import get_task
 
         get_task(self.task)
-        if self.design is not None:
-            _check_design(self.design)
+        _check_design(self.design)
         for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise TrainingError(f"training config {name}={getattr(self, name)!r} must be a positive integer")
@@ -141,10 +140,12 @@ class TrainConfig:
 
 
 def _check_design(design: object) -> None:
-    """A fixed training design: ``[x, y, z, l]`` within the bounds."""
+    """A fixed training design: None, or ``[x, y, z, l]`` within the bounds."""
     from tumblebot.sim.design import Design
     from tumblebot.sim.errors import DesignError
 
+    if design is None:
+        return
     if not isinstance(design, list) or len(design) != 4 \
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in design):
         raise TrainingError(f"training config design={design!r} must be [x, y, z, l] in metres or null")
