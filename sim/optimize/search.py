@@ -173,7 +173,7 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     spent_before = episode_count(study) if episode_budget is not None else 0
     targets = objective.targets
     reserve = recipe.final_promotions * len(targets) * (recipe.batch - recipe.screen_batch) * n_tasks
-    if objective.front and not study.trials:
+    if objective.front:
         _enqueue_least_energy(study, seed)
 
     def affordable(cost: int, keep: int = 0) -> bool:
@@ -238,11 +238,21 @@ def _final_promotions(study: optuna.Study, objective: Objective, recipe: Recipe,
 
 def _enqueue_least_energy(study: optuna.Study, seed: int) -> None:
     """A front study's first trial: the feasible design of least ``e(w)`` (found without
-    episodes), the low-energy end of the front and the ``ξ = ∞`` answer."""
+    episodes), the low-energy end of the front and the ``ξ = ∞`` answer. Enqueued unless a
+    trial of that design is finished, running or waiting (so a run stopped during that
+    trial enqueues it again on resume)."""
+    from optuna.trial import TrialState
+
     from tumblebot.sim.optimize.surrogate import minimum_energy_design
 
     w = minimum_energy_design(np.random.default_rng(np.random.SeedSequence([seed, 7919])))
-    study.enqueue_trial(dict(zip(PARAMETERS, (float(v) for v in w), strict=True)))
+    params = dict(zip(PARAMETERS, (float(v) for v in w), strict=True))
+    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING,
+                                                        TrialState.WAITING)):
+        fixed = t.params or t.system_attrs.get("fixed_params", {})
+        if all(math.isclose(float(fixed.get(n, math.nan)), params[n]) for n in PARAMETERS):
+            return
+    study.enqueue_trial(params)
 
 
 class _Heartbeat:

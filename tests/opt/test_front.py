@@ -172,3 +172,23 @@ def test_that_trial_records_read_old_studies_and_refuse_unknown_fields(tmp_path:
     rec = TrialRecord.of(study.trials[0])
     assert rec.R == {"nav-flat": [0.5, 0.7]} and rec.e == 4.0 and rec.batch == 2 and rec.episodes == 2
     assert rec.infeasible is None and not rec.interrupted and rec.mean_R == {}
+
+
+def test_that_a_front_study_stopped_during_its_first_trial_redoes_the_least_energy_design(tmp_path: Path) -> None:
+    from optuna.trial import TrialState
+
+    from tumblebot.sim.optimize import StopRequested, StudyConfig, open_storage, open_study, optimize
+
+    objective = Objective({"nav-flat": 1.0}, 0.0, front=(0.0, 3.0, math.inf))
+    recipe = Recipe.make("efficient", 3, 8, 2)
+    study = open_study(open_storage(f"sqlite:///{tmp_path / 'f.db'}"), "f", StudyConfig.of(objective, recipe, 0, {}))
+    looks = iter([False, True])  # Ctrl-C lands right after the first trial was asked for
+    with pytest.raises(StopRequested):
+        optimize(study, objective, recipe, None, 0, should_stop=lambda: next(looks, True))
+    first = study.trials[0]
+    assert first.state == TrialState.FAIL and first.user_attrs.get("interrupted")
+    optimize(study, objective, recipe, None, 0, episode_budget=0)  # resume: nothing to spend, but it re-enqueues
+    waiting = study.get_trials(deepcopy=False, states=(TrialState.WAITING,))
+    assert [t.system_attrs["fixed_params"] for t in waiting] == [first.params]
+    optimize(study, objective, recipe, None, 0, episode_budget=0)  # and only once
+    assert len(study.get_trials(deepcopy=False, states=(TrialState.WAITING,))) == 1
