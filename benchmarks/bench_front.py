@@ -52,6 +52,10 @@ def main() -> None:
     ap.add_argument("--inf-trials", type=int, default=60, help="designs of the ξ = inf study (free: no episodes)")
     ap.add_argument("--final-episodes", type=int, default=480)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--storage", default=None,
+                    help="keep the studies in this SQLite folder's files (default: a temporary folder); a rerun "
+                         "reuses finished per-ξ studies")
+    ap.add_argument("--front-study", default="front", help="name of the front study (a new name reruns only it)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/front.json"))
     args = ap.parse_args()
 
@@ -62,7 +66,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: bundled_policy(args.task)},
                                                              workers=args.workers) as runner:
         for seed in range(args.seeds):
-            url = f"sqlite:///{Path(tmp) / f'front-{seed}.db'}"
+            folder = Path(args.storage) if args.storage else Path(tmp)
+            folder.mkdir(parents=True, exist_ok=True)
+            url = f"sqlite:///{folder / f'front-{seed}.db'}"
             single: dict[float, dict[str, Any]] = {}
             for xi in XIS:
                 objective = Objective(weights, xi)
@@ -76,8 +82,8 @@ def main() -> None:
                       f"{_design(single[xi]['design'])}", flush=True)
             spent = sum(r["episodes"] for r in single.values())
             front_objective = Objective(weights, 0.0, front=XIS)
-            front = run_recipe(front_objective, efficient, seed, runner, url, "front", budget=spent // 3)
-            study = open_study(open_storage(url), "front", study_config(front_objective, efficient, seed))
+            front = run_recipe(front_objective, efficient, seed, runner, url, args.front_study, budget=spent // 3)
+            study = open_study(open_storage(url), args.front_study, study_config(front_objective, efficient, seed))
             optima = front_optima(study, XIS)
             print(f"seed {seed}, front study: {front['episodes']} episodes ({front['episodes'] / spent:.1%} of "
                   f"{spent}) in {front['seconds']:.0f} s", flush=True)

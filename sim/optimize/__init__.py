@@ -28,7 +28,7 @@ front study, replace Optuna's GP on the objective by a GP on ``R`` alone with ``
 exact (:mod:`~tumblebot.sim.optimize.surrogate`), which also chooses the promotions.
 
 Front studies (``Objective.front``): one study for several ``ξ`` at once. Its acquisition
-serves each finite ``ξ`` in turn from the same GP on ``R``; :func:`front_optima` reads the
+serves every finite ``ξ`` from the same GP on ``R`` (each proposal goes where some ξ has the most to gain); :func:`front_optima` reads the
 optimum of each ``ξ`` from its full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body

@@ -216,25 +216,41 @@ def posterior_objective(model: RModel, obs: Sequence[Observation], xi: float) ->
     return {o.number: float(m / s) for o, m, s in zip(obs, mu, scale, strict=True)}
 
 
-def propose(model: RModel, obs: Sequence[Observation], xi: float, rng: np.random.Generator,
+def propose(model: RModel, obs: Sequence[Observation], xis: float | Sequence[float], rng: np.random.Generator,
             pending: np.ndarray | None = None, n_random: int = 1500, n_local: int = 600) -> np.ndarray:
-    """The feasible design (metres) of highest expected improvement of ``S/(e+1)^ξ``."""
+    """The feasible design (metres) of highest expected improvement of ``S/(e+1)^ξ``.
+
+    With several ``ξ`` (a front study) the candidates are shared, and the design chosen is
+    the one whose improvement is largest *relative to its ξ's best value so far*: the search
+    goes where some ξ has the most to gain, rather than giving every ξ the same share (the
+    objectives of ξ = 0 and ξ = 3 differ by a factor of about 100, so EI itself does not
+    compare across them)."""
+    targets = [float(xis)] if isinstance(xis, (int, float)) else [float(x) for x in xis]
     if pending is not None and len(pending):
         model = model.with_fantasies(to_unit(pending))
-    now = posterior_objective(model, obs, xi)
-    best_now = max(now.values())
     observed = np.array([o.design for o in obs])
-    top = observed[np.argsort([-now[o.number] for o in obs])[:8]]
+    incumbents, tops = [], []
+    for xi in targets:
+        now = posterior_objective(model, obs, xi)
+        incumbents.append(max(now.values()))
+        tops.append(observed[np.argsort([-now[o.number] for o in obs])[:8]])
+    top = np.vstack(tops)
     local = to_unit(np.repeat(top, n_local // len(top) + 1, axis=0)[:n_local])
     local = local + rng.normal(0.0, 0.06, local.shape) * rng.choice([0.25, 1.0], size=(len(local), 1))
     cand = from_unit(np.vstack([rng.uniform(0.0, 1.0, (n_random, 4)), local]))
     cand = cand[feasible(cand)]
     mu, sd = model.predict(to_unit(cand))
-    scale = energy_scale(energies(cand), xi)
-    m, s = mu / scale, np.maximum(sd / scale, 1e-12)
-    z = (m - best_now) / s
-    ei = s * (z * stats.norm.cdf(z) + stats.norm.pdf(z))
-    return np.asarray(cand[int(np.argmax(ei))])
+    e = energies(cand)
+    best_gain, best = -math.inf, cand[0]
+    for xi, incumbent in zip(targets, incumbents, strict=True):
+        scale = energy_scale(e, xi)
+        m, sdev = mu / scale, np.maximum(sd / scale, 1e-12)
+        z = (m - incumbent) / sdev
+        gain = sdev * (z * stats.norm.cdf(z) + stats.norm.pdf(z)) / max(abs(incumbent), 1e-12)
+        i = int(np.argmax(gain))
+        if gain[i] > best_gain:
+            best_gain, best = float(gain[i]), cand[i]
+    return np.asarray(best)
 
 
 def minimum_energy_design(rng: np.random.Generator, n: int = 4000) -> np.ndarray:
@@ -260,8 +276,9 @@ def minimum_energy_design(rng: np.random.Generator, n: int = 4000) -> np.ndarray
 class RSampler(optuna.samplers.BaseSampler):
     """An Optuna sampler (public ``BaseSampler`` interface) proposing designs from :class:`RModel`.
 
-    ``targets``: the ``ξ`` values the acquisition serves; trial ``k`` aims at
-    ``targets[k % len(targets)]`` (a single-objective study has one). Until ``startup``
+    ``targets``: the ``ξ`` values the acquisition serves (a single-objective study has one;
+    with several, :func:`propose` picks the design of largest relative improvement for any
+    of them). Until ``startup``
     feasible designs have results, and for any parameter it is asked about alone, it falls
     back to ``independent`` (the seeded start-up sampler). The length scales are refitted
     from scratch every 10th fit and warm-started in between."""
@@ -288,8 +305,7 @@ class RSampler(optuna.samplers.BaseSampler):
         pending = np.array([[t.params[n] for n in PARAMETERS] for t in
                             study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
                             if t.number != trial.number and all(n in t.params for n in PARAMETERS)])
-        xi = self.targets[trial.number % len(self.targets)]
-        w = propose(model, obs, xi, self.rng, pending.reshape(-1, 4))
+        w = propose(model, obs, self.targets, self.rng, pending.reshape(-1, 4))
         return dict(zip(PARAMETERS, (float(v) for v in w), strict=True))
 
     def sample_independent(self, study: optuna.Study, trial: optuna.trial.FrozenTrial, param_name: str,
