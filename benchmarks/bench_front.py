@@ -41,7 +41,7 @@ from tumblebot.sim.runner import EpisodeRunner
 XIS = (0.0, 1.0, 3.0, math.inf)
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="nav-flat")
     ap.add_argument("--seeds", type=int, default=1)
@@ -57,7 +57,11 @@ def main() -> None:
                          "reuses finished per-ξ studies")
     ap.add_argument("--front-study", default="front", help="name of the front study (a new name reruns only it)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/front.json"))
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = _arguments()
 
     weights = {args.task: 1.0}
     efficient = Recipe("efficient", 100_000, args.batch, args.startup, args.screen, promote_every=0,
