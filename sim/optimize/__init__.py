@@ -28,8 +28,9 @@ front study, replace Optuna's GP on the objective by a GP on ``R`` alone with ``
 exact (:mod:`~tumblebot.sim.optimize.surrogate`), which also chooses the promotions.
 
 Front studies (``Objective.front``): one study for several ``ξ`` at once. Its acquisition
-serves every finite ``ξ`` from the same GP on ``R`` (each proposal goes where some ξ has the most to gain); :func:`front_optima` reads the
-optimum of each ``ξ`` from its full-batch designs.
+serves every finite ``ξ`` from the same GP on ``R`` (each proposal goes where some ξ has
+the most to gain; the GP sees the log of the leg margin ``l - r`` instead of ``l``), and
+:func:`front_optima` reads the optimum of each ``ξ`` from its full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body
 past its balance point (SPEC §3). Such trials cost no episodes; they are recorded with the

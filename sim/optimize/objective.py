@@ -128,7 +128,8 @@ class Objective:
     A *front* study (``front`` = the ``ξ`` values it serves, e.g. ``(0, 1, 3, inf)``) searches
     the Pareto front of high ``R`` and low ``e(w)`` instead of one ``ξ``: each trial's value
     is its ``ξ = 0`` objective (the weighted mean ``R``; ``xi`` is 0), its acquisition aims at
-    the listed finite ``ξ`` (the largest relative improvement for any of them), and the optimum of any ``ξ`` is read from it afterwards
+    the listed finite ``ξ`` (the largest relative improvement for any of them), and the
+    optimum of any ``ξ`` is read from it afterwards
     (:func:`~tumblebot.sim.optimize.trials.front_optima`). ``ξ = ∞`` costs no search: it is
     the design of least ``e(w)``, which the study evaluates first."""
 

@@ -111,7 +111,7 @@ def promotion_scores(study: optuna.Study, objective: Objective, xi: float) -> di
     obs = surrogate.observations(study, objective.weights)
     if len(obs) < 3 or objective.variant != "thesis":
         return screen_scores(study, objective.at(xi))
-    return surrogate.posterior_objective(surrogate.fit(obs), obs, xi)
+    return surrogate.posterior_objective(surrogate.fit(obs, margin=bool(objective.front)), obs, xi)
 
 
 def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,

@@ -23,7 +23,7 @@ Everything here is NumPy and SciPy; it uses only Optuna's public sampler interfa
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +50,23 @@ def to_unit(X: np.ndarray) -> np.ndarray:
 
 def from_unit(U: np.ndarray) -> np.ndarray:
     return np.asarray(LOW + np.clip(U, 0.0, 1.0) * SPAN)
+
+
+#: Leg margin ``l - r`` (m) below which the margin feature stops stretching.
+MARGIN_FLOOR = 0.002
+
+
+def margin_features(X: np.ndarray) -> np.ndarray:
+    """GP inputs of a front study: ``x, y, z`` scaled to the unit cube, and instead of ``l``
+    the log of the leg margin ``l - r``, scaled to [0, 1] over the bounds. R falls off a
+    cliff as the legs shorten toward the pivot radius (the least-energy design sits just
+    above it); on a log-margin axis that cliff is a gentle slope, so one short-legged result
+    no longer condemns the whole short-legged region a stationary kernel would lump with it."""
+    U = to_unit(X).copy()
+    r = np.hypot(np.asarray(X)[:, 1] / 2.0, np.asarray(X)[:, 2] / 2.0)
+    lo, hi = math.log(MARGIN_FLOOR), math.log(SPAN[3] + MARGIN_FLOOR)
+    U[:, 3] = (np.log(np.maximum(np.asarray(X)[:, 3] - r, 0.0) + MARGIN_FLOOR) - lo) / (hi - lo)
+    return U
 
 
 def feasible(X: np.ndarray) -> np.ndarray:
@@ -106,6 +123,7 @@ class RModel:
 
     def __init__(self, U: np.ndarray, y: np.ndarray, noise: np.ndarray, start: Hyper | None = None) -> None:
         self.U, self.y, self.noise = np.asarray(U, float), np.asarray(y, float), np.asarray(noise, float)
+        self.features: Callable[[np.ndarray], np.ndarray] = to_unit  #: designs (metres) → GP inputs
         self.mean = float(np.sum(self.y / self.noise) / np.sum(1.0 / self.noise))
         self.hyper = self._fit(start)
         self._factor(self.U, self.y, self.noise)
@@ -201,17 +219,21 @@ def batch_noise(obs: Sequence[Observation]) -> np.ndarray:
     return np.asarray(s2 / n)
 
 
-def fit(obs: Sequence[Observation], start: Hyper | None = None) -> RModel:
-    U = to_unit(np.array([o.design for o in obs]))
+def fit(obs: Sequence[Observation], start: Hyper | None = None, margin: bool = False) -> RModel:
+    """The GP on the observations; ``margin``: on :func:`margin_features` (front studies)
+    instead of the unit cube. The model remembers its features (``model.features``)."""
+    features = margin_features if margin else to_unit
     y = np.array([float(np.mean(o.S)) for o in obs])
-    return RModel(U, y, batch_noise(obs), start)
+    model = RModel(features(np.array([o.design for o in obs])), y, batch_noise(obs), start)
+    model.features = features
+    return model
 
 
 def posterior_objective(model: RModel, obs: Sequence[Observation], xi: float) -> dict[int, float]:
     """Each observed design's posterior-mean objective ``E[S]/(e+1)^ξ`` by trial number."""
     if not obs:
         return {}
-    mu, _ = model.predict(to_unit(np.array([o.design for o in obs])))
+    mu, _ = model.predict(model.features(np.array([o.design for o in obs])))
     scale = energy_scale(np.array([o.e for o in obs]), xi)
     return {o.number: float(m / s) for o, m, s in zip(obs, mu, scale, strict=True)}
 
@@ -227,7 +249,7 @@ def propose(model: RModel, obs: Sequence[Observation], xis: float | Sequence[flo
     compare across them)."""
     targets = [float(xis)] if isinstance(xis, (int, float)) else [float(x) for x in xis]
     if pending is not None and len(pending):
-        model = model.with_fantasies(to_unit(pending))
+        model = model.with_fantasies(model.features(pending))
     observed = np.array([o.design for o in obs])
     incumbents, tops = [], []
     for xi in targets:
@@ -239,7 +261,7 @@ def propose(model: RModel, obs: Sequence[Observation], xis: float | Sequence[flo
     local = local + rng.normal(0.0, 0.06, local.shape) * rng.choice([0.25, 1.0], size=(len(local), 1))
     cand = from_unit(np.vstack([rng.uniform(0.0, 1.0, (n_random, 4)), local]))
     cand = cand[feasible(cand)]
-    mu, sd = model.predict(to_unit(cand))
+    mu, sd = model.predict(model.features(cand))
     e = energies(cand)
     best_gain, best = -math.inf, cand[0]
     for xi, incumbent in zip(targets, incumbents, strict=True):
@@ -284,8 +306,9 @@ class RSampler(optuna.samplers.BaseSampler):
     from scratch every 10th fit and warm-started in between."""
 
     def __init__(self, weights: dict[str, float], targets: Sequence[float], startup: int,
-                 independent: optuna.samplers.BaseSampler, seed: int) -> None:
+                 independent: optuna.samplers.BaseSampler, seed: int, margin: bool = False) -> None:
         self.weights, self.targets, self.startup = dict(weights), [float(x) for x in targets], startup
+        self.margin = margin  #: fit on :func:`margin_features` (front studies)
         self.independent = independent
         self.rng = np.random.default_rng(seed)
         self.hyper: Hyper | None = None
@@ -300,7 +323,7 @@ class RSampler(optuna.samplers.BaseSampler):
         obs = observations(study, self.weights)
         if len(obs) < max(self.startup, 3):
             return {}
-        model = fit(obs, self.hyper if self.fits % 10 else None)
+        model = fit(obs, self.hyper if self.fits % 10 else None, self.margin)
         self.hyper, self.fits = model.hyper, self.fits + 1
         pending = np.array([[t.params[n] for n in PARAMETERS] for t in
                             study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))

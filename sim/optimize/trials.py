@@ -56,7 +56,8 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
     if objective is not None and objective.tasks and (recipe.name == "efficient" or objective.front):
         from tumblebot.sim.optimize.surrogate import RSampler
 
-        return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted)
+        return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted,
+                        margin=bool(objective.front))
     return optuna.samplers.GPSampler(seed=salted, independent_sampler=_Startup(seed=seed),
                                      n_startup_trials=recipe.startup, deterministic_objective=False,
                                      warn_independent_sampling=False)

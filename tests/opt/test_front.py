@@ -192,3 +192,17 @@ def test_that_a_front_study_stopped_during_its_first_trial_redoes_the_least_ener
     assert [t.system_attrs["fixed_params"] for t in waiting] == [first.params]
     optimize(study, objective, recipe, None, 0, episode_budget=0)  # and only once
     assert len(study.get_trials(deepcopy=False, states=(TrialState.WAITING,))) == 1
+
+
+def test_that_front_studies_model_r_over_the_log_leg_margin() -> None:
+    from tumblebot.sim.optimize import surrogate as s
+
+    W = np.array([[0.189, 0.102, 0.084, 0.0745], [0.189, 0.102, 0.084, 0.09], [0.189, 0.102, 0.084, 0.25]])
+    F = s.margin_features(W)
+    assert np.allclose(F[:, :3], s.to_unit(W)[:, :3]) and np.all((F >= 0) & (F <= 1))
+    assert F[1, 3] - F[0, 3] > 2 * (s.to_unit(W)[1, 3] - s.to_unit(W)[0, 3])  # the cliff near l = r is stretched
+    obs = _observations(np.random.default_rng(4), 30)
+    assert s.fit(obs, margin=True).features is s.margin_features and s.fit(obs).features is s.to_unit
+    front = Objective({"nav-flat": 1.0}, 0.0, front=(0.0, 3.0))
+    sampler = make_sampler(Recipe.make("efficient", 30, 60), 0, 0, front)
+    assert isinstance(sampler, s.RSampler) and sampler.margin
