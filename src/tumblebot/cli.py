@@ -751,8 +751,8 @@ def _add_optimize_command(sub: Subcommands) -> None:
     p.add_argument("--xi", default=None, help="energy exponent xi >= 0, or inf to minimise e(w) alone (default 0)")
     p.add_argument("--front", nargs="?", const="0,1,3,inf", default=None, metavar="XIS",
                    help="instead of one xi, search the front of high R and low e(w) for every xi in XIS (default "
-                        "0,1,3,inf): a GP on R with e(w) exact, its acquisition going where some xi has the most to gain; "
-                        "report --xi reads each optimum from it")
+                        "0,1,3,inf): a GP on R with e(w) exact, its acquisition going where some xi has the most "
+                        "to gain; report --xi reads each optimum from it")
     p.add_argument("--trials", type=int, help="designs to evaluate in the study (all workers together)")
     p.add_argument("--batch", type=int, help="episodes per task for a design's full evaluation (thesis: 240)")
     p.add_argument("--startup", type=int, help="random designs before the GP (default: half the trials, at most 20)")
