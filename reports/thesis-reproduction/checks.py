@@ -173,7 +173,7 @@ def render(data: dict[str, Any]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--storage", default="sqlite:///runs/thesis.db")
+    ap.add_argument("--storage", default="sqlite:///runs/thesis-new.db")
     ap.add_argument("--policy-study", default="nav-flat-front")
     ap.add_argument("--goto-study", default="nav-flat-front-goto")
     ap.add_argument("--episodes", type=int, default=240)
