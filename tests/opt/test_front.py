@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +22,7 @@ from tumblebot.sim.optimize import (
 )
 from tumblebot.sim.power import energy_per_metre
 
-
-def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
+from .test_optimize import tb
 
 
 def _truth(W: np.ndarray) -> np.ndarray:
@@ -130,7 +125,7 @@ def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_pat
     db = tmp_path / "front.db"
     storage = f"sqlite:///{db}"
     run = tb("optimize", "--tasks", "nav-flat", "--front", "--recipe", "efficient", "--trials", "16", "--batch",
-             "12", "--startup", "6", "--storage", storage, "--quiet", "--json", str(tmp_path / "s.json"))
+             "12", "--startup", "6", "--storage", storage, "--quiet", "--json", str(tmp_path / "s.json"), timeout=900)
     assert run.returncode == 0, run.stderr
     assert "optimum of each ξ" in run.stdout and "front for ξ=0,1,3,inf" in run.stderr
     summary = json.loads((tmp_path / "s.json").read_text())
@@ -149,16 +144,17 @@ def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_pat
     # the report: one Table 3.1 row per ξ asked for, and the front plotted
     out = tmp_path / "report"
     rep = tb("report", "--storage", storage, "--study", "nav-flat=1-front", "--xi", "0,3,inf", "-o", str(out),
-             "--episodes", "4", "--slice-points", "2", "--quiet")
+             "--episodes", "4", "--slice-points", "2", "--quiet", timeout=900)
     assert rep.returncode == 0, rep.stderr
     data = json.loads((out / "report.json").read_text())
     assert [row["xi"] for row in data["table31"]] == ["0", "3", "inf"]
     assert (out / "front.png").is_file() and "front.png" in (out / "report.md").read_text()
     # --xi is for front studies only
     single = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
-                "--study", "one", "--quiet")
+                "--study", "one", "--quiet", timeout=900)
     assert single.returncode == 0, single.stderr
-    bad = tb("report", "--storage", storage, "--study", "one", "--xi", "0", "-o", str(tmp_path / "r2"), "--quiet")
+    bad = tb("report", "--storage", storage, "--study", "one", "--xi", "0", "-o", str(tmp_path / "r2"), "--quiet",
+             timeout=900)
     assert bad.returncode == 2 and "front studies" in bad.stderr and "Traceback" not in bad.stderr
 
 
