@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -368,6 +368,12 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def release(self, snap: EnvSnapshot) -> None:
         self._p.removeState(snap.state_id, physicsClientId=self._client)
+
+    def reseed_motor_noise(self, seed: int | Sequence[int]) -> None:
+        """Replace the motor noise and latency still to come by a fresh stream from
+        ``seed``: after :meth:`restore`, a planner then tries an action against a future
+        drawn anew instead of the episode's own (which it must not see)."""
+        self._motor_rng = np.random.default_rng(seed)
 
     # ------------------------------------------- continuous driving (the digital twin)
     def set_leg_commands(self, right: float, left: float) -> None:

@@ -198,8 +198,10 @@ class _RunLogs:
         self.episodes.close()
 
 
-def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> None:
-    """Check the run can start, then write its config (rewritten with the steps taken at the end)."""
+def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
+             teacher: dict[str, Any] | None = None) -> None:
+    """Check the run can start, then write its config (rewritten with the steps taken at
+    the end) and ``imitation.json``: the DAgger settings and the teacher."""
     if config.observation != "context":
         raise TrainingError("imitation needs the context observation (goto uses memory the thesis's 9 numbers lack)")
     from tumblebot.sim.goto import check_navigation_task
@@ -209,7 +211,8 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path) -> 
         raise TrainingError(f"{run_dir} already holds a run")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(config.to_json())
-    (run_dir / "imitation.json").write_text(json.dumps(asdict(imitation), indent=2) + "\n")
+    record = {**asdict(imitation), "teacher": teacher or {"kind": "goto"}}
+    (run_dir / "imitation.json").write_text(json.dumps(record, indent=2) + "\n")
 
 
 def _fit_and_save(model: Any, optimiser: torch.optim.Optimizer,
@@ -314,9 +317,10 @@ def _summarise(records: list[Any], iteration: int, dataset: int, loss: float, wa
 
 
 def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int, workers: int,
-           on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
-    """DAgger toward ``goto`` with a clairvoyant search over the last ``horizon`` steps
-    (:mod:`tumblebot.training.lookahead`), from the imitation run ``source``: its weights,
+           on_iteration: Callable[[IterationSummary], None] | None = None, draws: int = 0) -> Path:
+    """DAgger toward ``goto`` with a search over the last ``horizon`` steps
+    (:mod:`tumblebot.training.lookahead`; clairvoyant with ``draws = 0``, else each action
+    scored over ``draws`` futures drawn anew), from the imitation run ``source``: its weights,
     and its goto-labelled states before that window (the teacher is goto there too). The
     student drives every iteration; returns the new run's checkpoint."""
     from stable_baselines3 import PPO
@@ -331,14 +335,15 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
     if not (source / "dagger.npz").is_file():
         raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
     config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps
-    _new_run(config, imitation, run_dir)
+    _new_run(config, imitation, run_dir, {"kind": "goto+search", "lookahead": horizon, "draws": draws,
+                                          "future": "drawn anew" if draws else "the episode's own (clairvoyant)"})
     torch.set_num_threads(1)
     model = PPO.load(source / "latest.zip", device="cpu")
     old = np.load(source / "dagger.npz")
     before = old["inputs"][:, LAYOUTS["context"].index("steps_left")] > horizon / EPISODE_STEPS + 1e-6
     data = [(old["inputs"][before], old["labels"][before], old["returns"][before])]
     spec = WorkerSpec(config.task, config.tumbling_designs_only, config.motor_model, config.stall_torque,
-                      config.state_weight, config.progress_weight, horizon)
+                      config.state_weight, config.progress_weight, horizon, draws)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
     start, steps = time.monotonic(), 0
     logs = _RunLogs(run_dir)

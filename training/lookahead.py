@@ -5,10 +5,13 @@ one leg; on the thesis's ξ = 3 robot that leaves it about 0.12 short of a perfe
 R. In the last ``horizon`` steps of an episode this teacher tries every one of the nine
 actions from a snapshot of the simulation (:meth:`TumblerEnv.snapshot`), follows each
 with ``goto`` to the end, and labels the state with the action whose episode ended best.
-The snapshot holds the motor noise and latency still to come, so the teacher sees a
-future no policy can see ("learning by cheating"): the student, which sees only its
-observation, learns the action that is best on average in states like it. Earlier steps
-are labelled by ``goto`` itself.
+With ``draws = 0`` the snapshot's own motor noise and latency still to come are used, so
+the teacher sees a future no policy can see ("learning by cheating"); with ``draws = K``
+each action is scored by the mean final R over ``K`` futures drawn anew
+(:meth:`TumblerEnv.reseed_motor_noise`; the same ``K`` for every action), so the teacher
+no longer sees the noise to come, only the hidden state (leg angles, masses, friction).
+Either way the student, which sees only its observation, learns the action that is best
+on average in states like it. Earlier steps are labelled by ``goto`` itself.
 
 Episodes run in worker processes (each with its own environment, the student as an ONNX
 file exported by the caller, and the teacher), since the search needs an environment of
@@ -55,6 +58,7 @@ class WorkerSpec:
     state_weight: float
     progress_weight: float
     horizon: int  #: the last steps labelled by the search
+    draws: int = 0  #: futures drawn anew per action (0: the episode's own, clairvoyant)
 
 
 _WORKER: dict[str, Any] = {}
@@ -81,20 +85,28 @@ def _finish(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> float
     return float(info["final_R"])
 
 
-def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> tuple[int, int]:
-    """The action whose episode, continued by ``goto``, ends with the best final R."""
+def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: int = 0,
+            seed: int = 0) -> tuple[int, int]:
+    """The action whose episode, continued by ``goto``, ends with the best final R: in
+    the episode's own future (``draws = 0``), or on average over ``draws`` futures drawn
+    from ``seed`` and ``step``."""
     snap = env.snapshot()
     best, best_action = -np.inf, ALL_ACTIONS[4]
     try:
         for action in ALL_ACTIONS:
-            env.restore(snap)
-            follower = copy.deepcopy(goto)
-            follower.act(obs, step)
-            follower.taken(action)
-            after, _, _, _, info = env.step(np.array(action))
-            final = float(info["final_R"]) if step + 1 >= env.episode_steps else _finish(env, follower, after, step + 1)
-            if final > best:
-                best, best_action = final, action
+            total = 0.0
+            for draw in range(max(draws, 1)):
+                env.restore(snap)
+                if draws:
+                    env.reseed_motor_noise([seed, step, draw])
+                follower = copy.deepcopy(goto)
+                follower.act(obs, step)
+                follower.taken(action)
+                after, _, _, _, info = env.step(np.array(action))
+                total += (float(info["final_R"]) if step + 1 >= env.episode_steps
+                          else _finish(env, follower, after, step + 1))
+            if total / max(draws, 1) > best:
+                best, best_action = total / max(draws, 1), action
         env.restore(snap)
     finally:
         env.release(snap)
@@ -113,7 +125,7 @@ def _episode(seed: int) -> EpisodeRecord:
     for step in range(env.episode_steps):
         x = student.context(obs) if student is not None else None  # the student's input, built as when deployed
         if step >= env.episode_steps - spec.horizon:
-            label = _search(env, goto, obs, step)
+            label = _search(env, goto, obs, step, spec.draws, seed)
             goto.act(obs, step)
             searched += 1
         else:

@@ -213,11 +213,12 @@ def _refine(args: argparse.Namespace) -> int:
 
     settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
     workers = args.envs if args.envs is not None else (os.cpu_count() or 1)
-    print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead: {settings.iterations} "
-          f"iterations of {settings.episodes} episodes, {workers} workers, in {args.run_dir}")
+    future = f"the mean of {args.draws} futures drawn anew" if args.draws else "the episode's own future"
+    print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead over {future}: "
+          f"{settings.iterations} iterations of {settings.episodes} episodes, {workers} workers, in {args.run_dir}")
     try:
         final = refine(args.refine, args.run_dir, settings, args.lookahead, workers,
-                       on_iteration=lambda summary: print(summary.describe(), flush=True))
+                       on_iteration=lambda summary: print(summary.describe(), flush=True), draws=args.draws)
     except TrainingInterrupted as stopped:
         print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration",
               file=sys.stderr)
@@ -579,6 +580,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"{value} must be an integer from 0 to 1000")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         return float(text)
@@ -681,6 +692,10 @@ def _add_imitate_command(sub: Subcommands) -> None:
                         "search over the episode's last --lookahead steps (every action tried from a snapshot, "
                         "then goto to the end); the student drives every iteration, --envs worker processes")
     p.add_argument("--lookahead", type=_positive_int, default=4, help="steps the search labels (default 4)")
+    p.add_argument("--draws", type=_non_negative_int, default=0, metavar="K",
+                   help="with --refine: score each action by the mean over K futures of motor noise and latency "
+                        "drawn anew, so the teacher does not see the noise to come (default 0: the episode's own "
+                        "future, clairvoyant)")
     p.set_defaults(func=_imitate)
 
 

@@ -239,7 +239,9 @@ def test_that_refining_toward_the_lookahead_teacher_keeps_goto_labels_before_the
         tiny_dagger: Path, tmp_path: Path) -> None:
     run = tmp_path / "refined"
     assert main(["imitate", "--refine", str(tiny_dagger), "--run-dir", str(run), "--iterations", "1",
-                 "--episodes", "2", "--updates", "5", "--envs", "1", "--lookahead", "3"]) == 0
+                 "--episodes", "2", "--updates", "5", "--envs", "1", "--lookahead", "3", "--draws", "1"]) == 0
+    teacher = json.loads((run / "imitation.json").read_text())["teacher"]
+    assert teacher == {"kind": "goto+search", "lookahead": 3, "draws": 1, "future": "drawn anew"}
     config = TrainConfig.load(run / "config.json")
     assert config.init_from == str(tiny_dagger / "latest.zip") and config.observation == "context"
     data = np.load(run / "dagger.npz")
@@ -281,6 +283,60 @@ def test_that_the_lookahead_search_never_picks_an_action_worse_than_gotos() -> N
             env.release(snap)
     finally:
         env.close()
+
+
+def _drive_to_step_17(env: TumblerEnv, seed: int) -> tuple[np.ndarray, GotoController]:
+    obs, _ = env.reset(seed=seed)
+    goto = GotoController()
+    for step in range(17):
+        obs, *_ = env.step(np.array(goto.act(obs, step)))
+    return obs, goto
+
+
+def test_that_reseeding_the_motor_noise_draws_a_future_other_than_the_episodes_own() -> None:
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    try:
+        obs, goto = _drive_to_step_17(env, 0)
+        snap = env.snapshot()
+        own = [_final_after(env, snap, goto, obs, (2, 2)) for _ in range(2)]
+        assert own[0] == own[1]  # restore brings back the episode's own noise to come
+        drawn = []
+        for draw in range(3):
+            env.restore(snap)
+            env.reseed_motor_noise([7, draw])
+            follower = copy.deepcopy(goto)
+            follower.act(obs, 17)
+            o, *_ = env.step(np.array((2, 2)))
+            drawn.append(float(o[0]))
+        assert len(set(drawn)) == 3  # three draws, three futures
+        env.release(snap)
+    finally:
+        env.close()
+
+
+def test_that_the_search_over_drawn_futures_is_deterministic_and_keeps_the_episode_unchanged() -> None:
+    from tumblebot.training.lookahead import _search
+
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    try:
+        obs, goto = _drive_to_step_17(env, 1)
+        snap = env.snapshot()
+        first = _search(env, goto, obs, 17, draws=2, seed=5)
+        assert _search(env, goto, obs, 17, draws=2, seed=5) == first  # the same draws, the same label
+        after_search = env.step(np.array((2, 2)))[0]
+        env.restore(snap)
+        untouched = env.step(np.array((2, 2)))[0]
+        np.testing.assert_array_equal(after_search, untouched)  # the episode's own future is restored
+        env.release(snap)
+    finally:
+        env.close()
+
+
+def test_that_imitate_refuses_a_negative_number_of_draws(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main(["imitate", "--refine", "runs/none", "--run-dir", "x", "--draws", "-1"])
+    assert stop.value.code == 2
+    assert "--draws: -1 must be an integer from 0 to 1000" in capsys.readouterr().err
 
 
 def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger: Path, tmp_path: Path) -> None:
