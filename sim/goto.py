@@ -88,6 +88,42 @@ class GotoConfig:
             raise SimError("goto: need 0 < turn_tolerance < π, 0 ≤ stop_fraction ≤ 1, margin ≥ 0, 0 < memory ≤ 1")
 
 
+class MotionMemory:
+    """``goto``'s memory of the episode: running estimates of how far a drive step moves
+    the robot (m) and how far each spin turns it (rad), each weighing the newest step by
+    ``memory`` and starting from the priors. Feed it every observation of the episode, in
+    order, with the action taken since the previous one (:meth:`observe`).
+
+    A ``memory`` policy (:data:`tumblebot.sim.policy.LAYOUTS`) is given the same estimates,
+    computed by this class from the commands its observations carry."""
+
+    def __init__(self, memory: float = 0.5) -> None:
+        self.memory = memory
+        self.reset()
+
+    def reset(self) -> None:
+        self.step_length = PRIOR_STEP_LENGTH
+        self.spin_rate: dict[Action, float] = {SPIN_POSITIVE: PRIOR_SPIN_RATE, SPIN_NEGATIVE: -PRIOR_SPIN_RATE}
+        self._last: tuple[np.ndarray, float] | None = None
+
+    def observe(self, position: np.ndarray, psi: float, action: Action | None) -> None:
+        """The robot is now at ``position`` (x, y) with heading ``psi`` after ``action``
+        (``None`` before the first step)."""
+        if self._last is not None and action is not None:
+            last_position, last_psi = self._last
+            k = self.memory
+            if action in (FORWARD, REVERSE):
+                moved = float(np.hypot(*(position - last_position)))
+                self.step_length += k * (moved - self.step_length)
+            elif action in self.spin_rate:
+                self.spin_rate[action] += k * (wrap_angle(psi - last_psi) - self.spin_rate[action])
+        self._last = (np.asarray(position, dtype=float), float(psi))
+
+    def as_array(self) -> np.ndarray:
+        """``(step_length, spin_rate(SPIN_POSITIVE), spin_rate(SPIN_NEGATIVE))``."""
+        return np.array([self.step_length, self.spin_rate[SPIN_POSITIVE], self.spin_rate[SPIN_NEGATIVE]])
+
+
 class GotoController:
     """Closed-loop "turn, drive, stop" to the origin. Call :meth:`reset` at the start of
     each episode, then :meth:`act` with each observation and the index of the step about
@@ -95,23 +131,20 @@ class GotoController:
 
     def __init__(self, config: GotoConfig | None = None) -> None:
         self.config = config or GotoConfig()
+        self.motion = MotionMemory(self.config.memory)
         self.reset()
 
     def reset(self) -> None:
-        self.step_length = PRIOR_STEP_LENGTH
-        self.spin_rate: dict[Action, float] = {SPIN_POSITIVE: PRIOR_SPIN_RATE, SPIN_NEGATIVE: -PRIOR_SPIN_RATE}
-        self._last: tuple[np.ndarray, float, Action] | None = None
+        self.motion.reset()
+        self._action: Action | None = None
 
-    def _learn(self, position: np.ndarray, psi: float) -> None:
-        if self._last is None:
-            return
-        last_position, last_psi, action = self._last
-        k = self.config.memory
-        if action in (FORWARD, REVERSE):
-            moved = float(np.hypot(*(position - last_position)))
-            self.step_length += k * (moved - self.step_length)
-        elif action in self.spin_rate:
-            self.spin_rate[action] += k * (wrap_angle(psi - last_psi) - self.spin_rate[action])
+    @property
+    def step_length(self) -> float:
+        return self.motion.step_length
+
+    @property
+    def spin_rate(self) -> dict[Action, float]:
+        return self.motion.spin_rate
 
     def _turn(self, error: float, drive: Action, gain: float) -> Action:
         """The spin that is seen to turn toward ``error``'s sign; if none does, drive
@@ -127,15 +160,15 @@ class GotoController:
         """Record that ``action``, not this controller's choice, was taken at the step it
         was last asked about (another controller drove; imitation learning labels the
         states a student visits this way). The estimates then learn from what happened."""
-        if self._last is not None:
-            self._last = (self._last[0], self._last[1], (int(action[0]), int(action[1])))
+        if self._action is not None:
+            self._action = (int(action[0]), int(action[1]))
 
     def act(self, obs: np.ndarray, step: int) -> Action:
         """The action for step ``step`` given the observation before it."""
         cfg = self.config
         position = np.asarray(obs[POSITION][:2], dtype=float)
         psi = heading(np.asarray(obs[QUATERNION]))
-        self._learn(position, psi)
+        self.motion.observe(position, psi, self._action)
         distance = float(np.hypot(*position))
         steps_left = cfg.episode_steps - step
         length = max(self.step_length, _MIN_STEP_LENGTH)
@@ -152,7 +185,7 @@ class GotoController:
                 action = self._turn(error, drive, gain)
             elif gain > cfg.margin:
                 action = drive
-        self._last = (position, psi, action)
+        self._action = action
         return action
 
 

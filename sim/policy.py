@@ -13,6 +13,10 @@ Two observation layouts exist (:data:`LAYOUTS`):
   of the episode (1 before the first step), and the previous step's 9 thesis numbers
   (the current ones again before the first step). A policy with this input is told the
   body it drives, how much time is left, and what its last action did.
+* ``memory``: ``context``, then ``goto``'s memory of the episode (:data:`MEMORY_FIELDS`,
+  :class:`tumblebot.sim.goto.MotionMemory`): the running estimates of a drive step's
+  length (m) and of each spin's yaw change (rad), learnt from every step so far, with the
+  action of each step read from the command the next observation carries.
 
 Callers always hand :meth:`OnnxPolicy.act` the thesis observation; the policy builds the
 rest itself (:class:`ObservationContext`), given the design at :meth:`OnnxPolicy.reset`,
@@ -37,7 +41,9 @@ OBS_LAYOUT: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_ri
 POSITION, QUATERNION, COMMAND = slice(0, 3), slice(3, 7), slice(7, 9)  #: where each part lies in it
 CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
                                    *(f"prev_{name}" for name in OBS_LAYOUT))
-LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS}
+MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
+LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
+                                       "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS}
 EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 
@@ -81,8 +87,8 @@ class ObservationContext:
 
     ``reset(design)`` starts an episode; each call then takes the thesis observation
     before the next step and returns the policy input (for ``thesis``, the observation
-    itself). The step count and the previous observation are its own memory, so it must
-    see every step of the episode, in order.
+    itself). The step count, the previous observation and (``memory``) the motion
+    estimates are its own memory, so it must see every step of the episode, in order.
     """
 
     def __init__(self, layout: str = "thesis", episode_steps: int = EPISODE_STEPS) -> None:
@@ -95,11 +101,16 @@ class ObservationContext:
         self.episode_steps = episode_steps
         self._design: np.ndarray | None = None
         self._previous: np.ndarray | None = None
+        self._motion: Any = None
+        if layout == "memory":
+            from tumblebot.sim.goto import MotionMemory  # goto imports this module
+
+            self._motion = MotionMemory()
         self.step = 0
 
     @property
     def needs_design(self) -> bool:
-        return self.layout == "context"
+        return self.layout != "thesis"
 
     def reset(self, design: Sequence[float] | None = None) -> None:
         if self.needs_design:
@@ -111,6 +122,8 @@ class ObservationContext:
                 raise PolicyError(f"design {list(design)!r} must be four positive lengths (x, y, z, l) in m")
             self._design = values
         self._previous = None
+        if self._motion is not None:
+            self._motion.reset()
         self.step = 0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -126,7 +139,20 @@ class ObservationContext:
         self._previous = obs
         self.step += 1
         time_left = np.array([steps_left], dtype=np.float32)
-        return np.concatenate([obs, self._design, time_left, previous]).astype(np.float32)
+        parts = [obs, self._design, time_left, previous]
+        if self._motion is not None:
+            parts.append(self._remember(obs, first=self.step == 1))
+        return np.concatenate(parts).astype(np.float32)
+
+    def _remember(self, obs: np.ndarray, first: bool) -> np.ndarray:
+        """The motion estimates after this observation; the action since the last one is
+        the command it carries (−1, 0, 1 per leg → 0, 1, 2)."""
+        from tumblebot.sim.goto import heading
+
+        command = np.rint(obs[COMMAND]).astype(int) + 1
+        action = None if first else (int(np.clip(command[0], 0, 2)), int(np.clip(command[1], 0, 2)))
+        self._motion.observe(obs[POSITION][:2].astype(float), heading(obs[QUATERNION]), action)
+        return np.asarray(self._motion.as_array(), dtype=np.float32)
 
 
 class OnnxPolicy:

@@ -26,13 +26,17 @@ from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.policy import ACTION_LAYOUT, LAYOUTS, card_path, sha256_of
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
-from tumblebot.training.features import CONTEXT_FEATURE_NAMES, FEATURE_NAMES
+from tumblebot.training.features import feature_names
 
 OBSERVATION_NOTES = {
     "thesis": "the thesis observation",
     "context": ("the thesis observation, then the design (m), the fraction of the episode's 20 steps left "
                 "and the previous step's thesis observation (the current one before the first step); "
                 "OnnxPolicy builds it from the thesis observation and the design given at reset"),
+    "memory": ("the context observation, then goto's motion estimates learnt from every step of the episode "
+               "so far (a drive step's length in m, each spin's yaw change in rad; MotionMemory, from the "
+               "commands the observations carry); OnnxPolicy builds it from the thesis observation and the "
+               "design given at reset"),
 }
 
 
@@ -113,7 +117,7 @@ def export_onnx(model: PPO, path: Path) -> None:
 def write_card(onnx_path: Path, task: str, steps: int, config: TrainConfig | None,
                extra: dict[str, Any] | None = None) -> dict[str, Any]:
     layout = config.observation if config else "thesis"
-    names = CONTEXT_FEATURE_NAMES if layout == "context" else FEATURE_NAMES
+    names = feature_names(layout)
     card: dict[str, Any] = {
         "format": "tumblebot-policy-card/1",
         "task": task,

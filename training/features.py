@@ -13,9 +13,10 @@ last command (2).
 A policy with the ``context`` input (:data:`tumblebot.sim.policy.LAYOUTS`) gets those
 features of the current and of the previous observation, then the design scaled by
 ``1/DESIGN_SCALE``, the fraction of the episode left, and the step's planar displacement
-scaled the same way (``CONTEXT_FEATURE_NAMES``). :class:`ContextObservation` builds that
-input inside the training environments with the same :class:`ObservationContext` the
-deployed policy uses.
+scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those, then
+goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
+``MEMORY_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
+training environments with the same :class:`ObservationContext` the deployed policy uses.
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ CONTEXT_FEATURE_NAMES: tuple[str, ...] = (
     *FEATURE_NAMES, *(f"prev_{name}" for name in FEATURE_NAMES),
     "design_x", "design_y", "design_z", "design_l", "steps_left", "moved_x", "moved_y",
 )
+MEMORY_FEATURE_NAMES: tuple[str, ...] = (*CONTEXT_FEATURE_NAMES, "memory_step_length", "memory_spin_positive",
+                                         "memory_spin_negative")
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 _THESIS = len(OBS_LAYOUT)
@@ -87,12 +90,33 @@ class ContextFeatures(nn.Module):
                          dim=-1)
 
 
+class MemoryFeatures(nn.Module):
+    """``memory`` input ``(B, 26)`` → features ``(B, 52)`` (``MEMORY_FEATURE_NAMES``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.context = ContextFeatures()
+        self._context_size = len(LAYOUTS["context"])
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        memory = obs[:, self._context_size:]
+        scaled = torch.cat([memory[:, 0:1] / DESIGN_SCALE, memory[:, 1:3]], dim=-1)
+        return torch.cat([self.context(obs[:, :self._context_size]), scaled], dim=-1)
+
+
+def feature_names(layout: str) -> tuple[str, ...]:
+    """What the feature layer of a ``layout`` policy computes, in order."""
+    return {"thesis": FEATURE_NAMES, "context": CONTEXT_FEATURE_NAMES, "memory": MEMORY_FEATURE_NAMES}[layout]
+
+
 def features_for(size: int) -> tuple[nn.Module, int]:
     """The feature layer for an input of ``size`` numbers, and its output size."""
     if size == len(LAYOUTS["thesis"]):
         return ObservationFeatures(), len(FEATURE_NAMES)
     if size == len(LAYOUTS["context"]):
         return ContextFeatures(), len(CONTEXT_FEATURE_NAMES)
+    if size == len(LAYOUTS["memory"]):
+        return MemoryFeatures(), len(MEMORY_FEATURE_NAMES)
     raise ValueError(f"no feature layer for a {size}-number observation")
 
 
@@ -111,7 +135,7 @@ class TumblerFeaturesExtractor(BaseFeaturesExtractor):
 
 
 class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
-    """A training environment whose observation is the ``context`` layout.
+    """A training environment whose observation is the ``context`` (or ``memory``) layout.
 
     The input is built by :class:`ObservationContext`, exactly as :class:`OnnxPolicy`
     builds it when deployed. Since the steps left are part of the observation, the end
@@ -119,12 +143,12 @@ class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndar
     truncation to bootstrap across.
     """
 
-    def __init__(self, env: gym.Env[np.ndarray, np.ndarray]) -> None:
+    def __init__(self, env: gym.Env[np.ndarray, np.ndarray], layout: str = "context") -> None:
         super().__init__(env)
         self._tumbler: Any = cast(Any, env.unwrapped)  # a TumblerEnv: its design and episode length
         steps = int(self._tumbler.episode_steps)
-        self.context = ObservationContext("context", episode_steps=steps)
-        high = np.full(len(LAYOUTS["context"]), 100.0, dtype=np.float32)
+        self.context = ObservationContext(layout, episode_steps=steps)
+        high = np.full(len(LAYOUTS[layout]), 100.0, dtype=np.float32)
         self.observation_space = gym.spaces.Box(low=-high, high=high, dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None

@@ -202,8 +202,9 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
              teacher: dict[str, Any] | None = None) -> None:
     """Check the run can start, then write its config (rewritten with the steps taken at
     the end) and ``imitation.json``: the DAgger settings and the teacher."""
-    if config.observation != "context":
-        raise TrainingError("imitation needs the context observation (goto uses memory the thesis's 9 numbers lack)")
+    if config.observation == "thesis":
+        raise TrainingError("imitation needs the context or memory observation (goto uses memory the thesis's "
+                            "9 numbers lack)")
     from tumblebot.sim.goto import check_navigation_task
 
     check_navigation_task(config.task)

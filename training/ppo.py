@@ -61,7 +61,7 @@ def make_env(task: str, state_weight: float, progress_weight: float,
              stall_torque: float = STALL_TORQUE, observation: str = "thesis",
              design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
-    wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
+    or ``"memory"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
     from tumblebot.sim.design import Design
 
     torch.set_num_threads(1)
@@ -72,7 +72,7 @@ def make_env(task: str, state_weight: float, progress_weight: float,
     env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
                      randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
                      stall_torque=stall_torque, design=None if design is None else Design.from_sequence(design))
-    return ContextObservation(env) if observation == "context" else env
+    return env if observation == "thesis" else ContextObservation(env, observation)
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:

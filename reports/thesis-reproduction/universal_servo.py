@@ -12,11 +12,13 @@ under two servos: the realistic one (DC, the thesis's constants, 0.58 N·m, the 
 and a predecessor-like strong one (velocity control, 10 N·m).
 
 No learned policy is used, since the bundled ones were trained under the realistic servo
-only. Both controllers are hand-written and need no training, so they run under any servo:
+only. Both controllers need no training, so they run under any servo:
 
-* ``nav-flat``: ``goto`` (:mod:`tumblebot.sim.goto`).
-* ``distance-flat`` and ``incline``: ``heading``, the same controller aimed at a goal
-  100 m along +x, so it turns to face +x and then tumbles straight along it.
+* ``nav-flat``: ``goto``, the hand-written closed-loop controller (:mod:`tumblebot.sim.goto`).
+* ``distance-flat`` and ``incline``: the scripted ``forward`` gait (both legs full forward
+  every step), the best fixed gait on both tasks in the bundled policies' cards. (A
+  closed-loop "face +x, then drive" controller was tried first: turning costs it more than
+  it gains, and on the ramp it is far worse than ``forward``.)
 
 Every cell is the same episodes (seed 1, common random numbers across bodies and servos).
 Writes ``universal_servo.json`` and ``universal_servo.md`` beside this file.
@@ -36,42 +38,18 @@ import numpy as np
 
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.evaluate import Servo, episode_seed
-from tumblebot.sim.goto import GotoController
 from tumblebot.sim.optimize import open_storage
-from tumblebot.sim.policy import POSITION
 from tumblebot.sim.report import paired_p
 from tumblebot.sim.report.tables import load_results
-from tumblebot.sim.rollout import run_episode
+from tumblebot.sim.rollout import make_actor, run_episode
 
 HERE = Path(__file__).resolve().parent
 TASKS = ("nav-flat", "distance-flat", "incline")
 STUDIES = {"nav-flat": "nav-flat-front", "nav-terrain": "nav-terrain-xi0", "distance-flat": "distance-flat-xi0",
            "incline": "incline-xi0"}
 SERVOS = {"realistic (dc, 0.58 N·m)": Servo(), "strong (velocity, 10 N·m)": Servo("velocity", 10.0)}
-FAR_GOAL = 100.0  #: m along +x: where ``heading`` aims on the distance and incline tasks
-
-
-class HeadingController:
-    """``goto`` aimed at a point ``FAR_GOAL`` m along +x instead of the origin: face +x,
-    then tumble straight along it (it never gets close enough to stop)."""
-
-    def __init__(self) -> None:
-        self.goto = GotoController()
-
-    def reset(self, seed: int, design: tuple[float, float, float, float]) -> None:
-        self.goto.reset()
-
-    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
-        shifted = np.array(obs, dtype=float)
-        shifted[POSITION.start] -= FAR_GOAL
-        return np.array(self.goto.act(shifted, step))
-
-
-class NavController(HeadingController):
-    """``goto`` itself (the goal at the origin)."""
-
-    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
-        return np.array(self.goto.act(obs, step))
+#: the controller of each task: (kind, name) for :func:`tumblebot.sim.rollout.make_actor`
+CONTROLLERS = {"nav-flat": ("goto", "goto"), "distance-flat": ("gait", "forward"), "incline": ("gait", "forward")}
 
 
 _ENVS: dict[tuple[str, str, float], Any] = {}
@@ -90,7 +68,7 @@ def _episode(job: tuple[str, str, float, tuple[float, ...], int]) -> float:
     if key not in _ENVS:
         _ENVS[key] = TumblerEnv(task=task, randomization=Randomization(design=False), motor_model=model,  # type: ignore[arg-type]
                                 stall_torque=torque)
-    actor = NavController() if task.startswith("nav") else HeadingController()
+    actor = make_actor(*CONTROLLERS[task], task)
     out = run_episode(_ENVS[key], actor, seed, options={"design": Design.from_sequence(w, allow_out_of_bounds=True)})
     return out.final_R
 
@@ -145,7 +123,7 @@ def render(data: dict[str, Any]) -> str:
     lines = ["# Universal optimum under two servos", "",
              f"Written by `universal_servo.py` ({data['episodes']} episodes per cell, seed {data['seed']}, the same "
              f"episodes in every cell; {data['seconds'] / 60:.0f} min on 2 cores). Controllers: `goto` on nav-flat, "
-             "`heading` (goto aimed 100 m along +x) on distance-flat and incline; no learned policy. "
+             "the scripted `forward` gait on distance-flat and incline; no learned policy. "
              "Each cell is mean final R; **bold** is the task's best body under that servo, and a † marks a "
              "body tied with it (paired t-test p ≥ 0.05).", ""]
     for servo_name, by_task in data["R"].items():

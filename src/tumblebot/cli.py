@@ -190,7 +190,7 @@ def _imitate(args: argparse.Namespace) -> int:
     from tumblebot.training.imitation import ImitationConfig, imitate
 
     settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
-    config = TrainConfig(task=task, observation="context", tumbling_designs_only=True, net_arch=args.net_arch,
+    config = TrainConfig(task=task, observation=args.observation, tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
                          motor_model=args.motor_model,
                          **({} if args.stall_torque is None else {"stall_torque": args.stall_torque}))
@@ -663,19 +663,20 @@ def _add_train_command(sub: Subcommands) -> None:
                    help="start a new run from the weights of another run's checkpoint (e.g. "
                         "runs/distance-flat/latest.zip for incline); the networks must match, and the "
                         "observation, net_arch, servo and design draw default to that run's")
-    p.add_argument("--observation", choices=("thesis", "context"), default=None,
-                   help="policy input: the thesis's 9 numbers, or those plus the design, the steps left "
-                        "and the previous observation (default thesis)")
+    p.add_argument("--observation", choices=("thesis", "context", "memory"), default=None,
+                   help="policy input: the thesis's 9 numbers; context: those plus the design, the steps left "
+                        "and the previous observation; memory: context plus goto's motion estimates "
+                        "(default thesis)")
     p.set_defaults(func=_train)
 
 
 def _add_imitate_command(sub: Subcommands) -> None:
     """The ``imitate`` command."""
     p = sub.add_parser("imitate", help="behaviour-clone the goto controller (DAgger): a warm start for train",
-                       description="Train a context-observation policy to do what the goto controller would, "
-                                   "with DAgger: goto drives the first iteration, the student the rest, and "
-                                   "goto labels every state. The run folder is a training run: export it, or "
-                                   "fine-tune it with tumblebot train --init-from RUN/latest.zip.")
+                       description="Train a context- or memory-observation policy to do what the goto "
+                                   "controller would, with DAgger: goto drives the first iteration, the student "
+                                   "the rest, and goto labels every state. The run folder is a training run: "
+                                   "export it, or fine-tune it with tumblebot train --init-from RUN/latest.zip.")
     p.add_argument("--task", default="nav-flat", help="nav-flat or nav-terrain")
     p.add_argument("--run-dir", type=Path, required=True, help="new run folder")
     p.add_argument("--iterations", type=_positive_int, default=8, help="DAgger iterations (default 8)")
@@ -684,6 +685,9 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="gradient steps after each iteration (default 4000)")
     p.add_argument("--net-arch", type=_net_arch, default=[256, 256], metavar="N,N",
                    help="hidden layer sizes (default 256,256)")
+    p.add_argument("--observation", choices=("context", "memory"), default="context",
+                   help="student input: context (the thesis's 9 numbers, the design, the steps left, the previous "
+                        "observation) or memory (context plus goto's motion estimates; default context)")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     _add_servo_arguments(p)

@@ -93,6 +93,52 @@ def test_that_training_builds_the_same_input_the_deployed_policy_builds() -> Non
         bare.close()
 
 
+@pytest.mark.parametrize("driver", ["goto", "random"])
+def test_that_the_memory_input_holds_gotos_own_motion_estimates_at_every_step(driver: str) -> None:
+    """The memory layout's last three numbers are what goto has learnt by that step,
+    whoever drives: they are rebuilt from the commands the observations carry."""
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    memory = ObservationContext("memory")
+    goto = GotoController()
+    rng = np.random.default_rng(5)
+    try:
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            memory.reset(XI3.as_tuple())
+            goto.reset()
+            for step in range(20):
+                x = memory(obs)
+                action = goto.act(obs, step)
+                if driver == "random":
+                    action = (int(rng.integers(3)), int(rng.integers(3)))
+                    goto.taken(action)
+                assert x.shape == (len(LAYOUTS["memory"]),)
+                np.testing.assert_array_equal(x[:len(LAYOUTS["context"])], x[:23])
+                np.testing.assert_allclose(x[-3:], goto.motion.as_array(), rtol=1e-6, atol=1e-7)
+                obs, *_ = env.step(np.array(action))
+    finally:
+        env.close()
+
+
+def test_that_a_memory_policy_exports_runs_and_matches_its_network(tmp_path: Path) -> None:
+    run, out = tmp_path / "mem", tmp_path / "nav-flat.onnx"
+    assert main(["imitate", "--run-dir", str(run), "--iterations", "1", "--episodes", "2", "--updates", "10",
+                 "--net-arch", "16,16", "--envs", "1", "--observation", "memory"]) == 0
+    assert TrainConfig.load(run / "config.json").observation == "memory"
+    assert main(["export", str(run), "-o", str(out), "--eval-episodes", "0"]) == 0
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["observation"]["layout"] == "memory" and card["observation"]["fields"] == list(LAYOUTS["memory"])
+    assert "memory_spin_negative" in card["observation"]["note"]
+    from stable_baselines3 import PPO
+
+    model = PPO.load(run / "latest.zip", device="cpu")
+    policy = OnnxPolicy(out, task="nav-flat")
+    x = np.random.default_rng(0).normal(size=(500, len(LAYOUTS["memory"]))).astype(np.float32)
+    np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
+    result = evaluate("nav-flat", XI3, Controller("onnx", str(out)), episodes=2, seed=0, workers=1)
+    assert np.isfinite(result.mean_R)
+
+
 def test_that_goto_learns_from_the_action_actually_taken() -> None:
     goto = GotoController()
     obs = np.array([1.0, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0], dtype=np.float32)
