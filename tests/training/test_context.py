@@ -133,7 +133,7 @@ def test_that_a_memory_policy_exports_runs_and_matches_its_network(tmp_path: Pat
 
     model = PPO.load(run / "latest.zip", device="cpu")
     policy = OnnxPolicy(out, task="nav-flat")
-    x = np.random.default_rng(0).normal(size=(500, len(LAYOUTS["memory"]))).astype(np.float32)
+    x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS["memory"]))).astype(np.float32)
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
     result = evaluate("nav-flat", XI3, Controller("onnx", str(out)), episodes=2, seed=0, workers=1)
     assert np.isfinite(result.mean_R)
