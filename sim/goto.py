@@ -79,10 +79,16 @@ class GotoConfig:
     stop_fraction: float = 0.5  #: stop when closer than this fraction of a step length
     margin: float = 0.02  #: m one more drive step must gain
     memory: float = 0.5  #: weight of the newest step in the running estimates
+    #: spin only while more than this many steps are left (a late spin moves the robot
+    #: unpredictably). 3 measured +0.008 mean final R over the model card's 12-design
+    #: grid (never worse, 240 episodes each); 2 is what every published goto number used.
+    spin_steps_left: int = 2
 
     def __post_init__(self) -> None:
         if self.episode_steps < 1:
             raise SimError(f"goto: episode_steps={self.episode_steps} must be at least 1")
+        if not 1 <= self.spin_steps_left <= self.episode_steps:
+            raise SimError(f"goto: spin_steps_left={self.spin_steps_left} must be 1–{self.episode_steps}")
         if not (0.0 < self.turn_tolerance < math.pi and 0.0 <= self.stop_fraction <= 1.0
                 and self.margin >= 0.0 and 0.0 < self.memory <= 1.0):
             raise SimError("goto: need 0 < turn_tolerance < π, 0 ≤ stop_fraction ≤ 1, margin ≥ 0, 0 < memory ≤ 1")
@@ -181,7 +187,7 @@ class GotoController:
                             else (error_reverse, REVERSE))
             after = math.sqrt(max(distance**2 + length**2 - 2 * distance * length * math.cos(error), 0.0))
             gain = distance - after
-            if abs(error) > cfg.turn_tolerance and steps_left > 2:
+            if abs(error) > cfg.turn_tolerance and steps_left > cfg.spin_steps_left:
                 action = self._turn(error, drive, gain)
             elif gain > cfg.margin:
                 action = drive

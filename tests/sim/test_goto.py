@@ -11,7 +11,7 @@ from tumblebot.sim.design import Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.evaluate import Controller, Servo, evaluate
-from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoController, heading
+from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
 
 XI3 = Design(0.292, 0.129, 0.098, 0.136)
 XI0 = Design(0.293, 0.117, 0.158, 0.218)
@@ -41,6 +41,20 @@ def test_that_goto_drives_when_facing_the_goal_and_spins_when_not() -> None:
     assert ctl.act(_obs(-1.0, 0.0, math.pi / 2), 0) == FORWARD
     ctl.reset()
     assert ctl.act(_obs(-1.0, 0.0, math.pi), 0) in (SPIN_POSITIVE, SPIN_NEGATIVE)
+
+
+@pytest.mark.parametrize("spin_steps_left", [2, 3, 5])
+def test_that_goto_spins_only_while_more_than_spin_steps_left_steps_remain(spin_steps_left: int) -> None:
+    obs = _obs(-1.0, 0.0, math.pi)  # the goal lies across the leg axis: a spin is wanted
+    for step in range(20):
+        ctl = GotoController(GotoConfig(spin_steps_left=spin_steps_left))
+        spins = ctl.act(obs, step) in (SPIN_POSITIVE, SPIN_NEGATIVE)
+        assert spins == (20 - step > spin_steps_left)
+
+
+def test_that_a_spin_window_longer_than_the_episode_is_refused() -> None:
+    with pytest.raises(SimError, match="spin_steps_left=21 must be 1–20"):
+        GotoConfig(spin_steps_left=21)
 
 
 def test_that_goto_gives_up_a_spin_that_stalls_and_tries_the_other() -> None:
