@@ -5,7 +5,7 @@ Every inference outside training (evaluation, optimisation, the host) goes throu
 ``POLICY.onnx``) says which task and observation layout the network expects, and holds
 the SHA-256 of the ONNX file; loading checks all three.
 
-Two observation layouts exist (:data:`LAYOUTS`):
+Three observation layouts exist (:data:`LAYOUTS`):
 
 * ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
 * ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
