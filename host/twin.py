@@ -45,6 +45,7 @@ DEADBAND_US = 10.0  #: continuous-rotation servos do not move within a few µs o
 #: Physical servo mounting: the right servo turns its leg forward for longer pulses; the
 #: left one is mounted mirrored (SPEC §5).
 MOUNTING = {"right": +1.0, "left": -1.0}
+LATE_SUBSTEPS = 10  #: 42 ms at 240 Hz: the most the world may fall behind before a substep counts as late
 
 
 class TwinError(TumblebotError):
@@ -100,7 +101,11 @@ class _World:
         self.placed = False
         self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
         self.seq, self.sim_time, self.substeps = 0, 0.0, 0
+        self.dropped = 0  #: substeps skipped because the world fell behind real time
+        self.late = 0  #: substeps simulated more than ``LATE_SUBSTEPS`` behind real time
         self.wall0 = time.monotonic()
+        self.emulator_lag = (0.0, 0.0)  #: least and most (wall − firmware) seconds seen, from the first
+        self._emulator_origin: tuple[float, int] | None = None
 
     def control(self, ctl: socket.socket, seed: int) -> bool:
         """Answer one control datagram; True on ``quit``."""
@@ -112,6 +117,16 @@ class _World:
         ctl.sendto(json.dumps(reply).encode(), source)
         return quit_now
 
+    def _track_emulator(self) -> None:
+        """How far the emulated firmware's clock drifts behind real time (simavr is paced
+        to real time, but cannot keep up on a starved machine)."""
+        now, sim_us = time.monotonic(), self.uno.sim_us
+        if self._emulator_origin is None:
+            self._emulator_origin = (now, sim_us)
+            return
+        lag = (now - self._emulator_origin[0]) - (sim_us - self._emulator_origin[1]) / 1e6
+        self.emulator_lag = (min(self.emulator_lag[0], lag), max(self.emulator_lag[1], lag))
+
     def catch_up(self) -> bool:
         """Simulate the substeps real time has made due (at most 24 at once: if the host
         stalls, do not race to catch up), under the servo pulses on the pins now,
@@ -119,10 +134,13 @@ class _World:
         due = int((time.monotonic() - self.wall0) / self.dt)
         if due <= self.substeps:
             return False
+        self._track_emulator()
         right_us, left_us = self.uno.widths()
         self.env.set_leg_commands(pulse_to_command(right_us, MOUNTING["right"]),
                                   pulse_to_command(left_us, MOUNTING["left"]))
-        for _ in range(min(due - self.substeps, 24)):
+        behind = due - self.substeps
+        self.late += max(0, min(behind, 24) - LATE_SUBSTEPS)
+        for _ in range(min(behind, 24)):
             self.env.advance(1)
             self.substeps += 1
             self.sim_time += self.dt
@@ -131,7 +149,9 @@ class _World:
                 self.seq += 1
                 self.out.sendto(encode_pose_datagram(self.body, self.seq, self.sim_time, position, quaternion),
                                 self.pose_to)
-        self.substeps = max(self.substeps, due - 24)
+        if due - 24 > self.substeps:
+            self.dropped += due - 24 - self.substeps
+            self.substeps = due - 24
         return True
 
 
@@ -168,6 +188,10 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
             elif not world.catch_up():
                 time.sleep(0.0005)
     finally:
+        print(f"world: {world.dropped} substeps ({world.dropped * world.dt:.2f} s) dropped behind real time, "
+              f"{world.late} of {world.substeps} simulated late; "
+              f"firmware clock drift {world.emulator_lag[0]:+.3f}..{world.emulator_lag[1]:+.3f} s",
+              file=sys.stderr, flush=True)
         env.close()
         uno.close()
         ctl.close()
@@ -290,8 +314,15 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
                "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
                "--policy", policy, *stack.host_args(), *(extra or [])]
         code = subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
+        stack.close()  # the world writes how far it fell behind real time as it stops
         if out.is_dir():
             (out / "twin.json").write_text(json.dumps({"servo": servo.as_dict()}) + "\n")
+            for name in ("world.log", "agent.log"):
+                if (Path(tmp) / name).is_file():
+                    (out / f"twin-{name}").write_text((Path(tmp) / name).read_text())
+        timing = [line for line in (Path(tmp) / "world.log").read_text().splitlines() if line.startswith("world:")]
+        if timing:
+            print(timing[-1], flush=True)  # how well this machine kept the twin in real time
         return code
 
 
