@@ -46,7 +46,7 @@ def control(stack: TwinStack, msg: dict[str, Any]) -> dict[str, Any]:
 def test_that_three_navigation_trials_through_the_twin_agree_with_pure_simulation(tmp_path: Path) -> None:
     """The twin runs in real time, so a starved machine shifts its errors by timing alone
     (measured on 2 cores under three busy loops: trial-set medians 0.12–0.34 m against
-    0.10–0.12 m unloaded, with the world never more than 42 ms behind). A second trial set
+    0.10–0.12 m unloaded, with the world dropping no simulated time). A second trial set
     is run when the first is NOT CONSISTENT; a real frame, servo-direction or timing bug
     fails both (``tests/host/test_twin_check.py`` shows the check catches each one)."""
     verdicts = []
