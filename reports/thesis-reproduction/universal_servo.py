@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
-import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -37,40 +35,20 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Servo, episode_seed
+from tumblebot.sim.evaluate import Controller, Servo
 from tumblebot.sim.optimize import open_storage
 from tumblebot.sim.report import paired_p
 from tumblebot.sim.report.tables import load_results
-from tumblebot.sim.rollout import make_actor, run_episode
+from tumblebot.sim.runner import EpisodeRunner
 
 HERE = Path(__file__).resolve().parent
 TASKS = ("nav-flat", "distance-flat", "incline")
 STUDIES = {"nav-flat": "nav-flat-front", "nav-terrain": "nav-terrain-xi0", "distance-flat": "distance-flat-xi0",
            "incline": "incline-xi0"}
 SERVOS = {"realistic (dc, 0.58 N·m)": Servo(), "strong (velocity, 10 N·m)": Servo("velocity", 10.0)}
-#: the controller of each task: (kind, name) for :func:`tumblebot.sim.rollout.make_actor`
-CONTROLLERS = {"nav-flat": ("goto", "goto"), "distance-flat": ("gait", "forward"), "incline": ("gait", "forward")}
-
-
-_ENVS: dict[tuple[str, str, float], Any] = {}
-
-
-def _init() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _episode(job: tuple[str, str, float, tuple[float, ...], int]) -> float:
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
-
-    task, model, torque, w, seed = job
-    key = (task, model, torque)
-    if key not in _ENVS:
-        _ENVS[key] = TumblerEnv(task=task, randomization=Randomization(design=False), motor_model=model,  # type: ignore[arg-type]
-                                stall_torque=torque)
-    actor = make_actor(*CONTROLLERS[task], task)
-    out = run_episode(_ENVS[key], actor, seed, options={"design": Design.from_sequence(w, allow_out_of_bounds=True)})
-    return out.final_R
+#: the controller of each task (no training needed, so any servo)
+CONTROLLERS = {"nav-flat": Controller.of_gait("goto"), "distance-flat": Controller.of_gait("forward"),
+               "incline": Controller.of_gait("forward")}
 
 
 def bodies(storage_url: str) -> dict[str, Design]:
@@ -90,15 +68,13 @@ def _w(d: Design) -> str:
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     designs = bodies(args.storage)
-    seeds = [episode_seed(args.seed, i) for i in range(args.episodes)]
     cells: dict[str, dict[str, dict[str, list[float]]]] = {}
     started = time.monotonic()
-    with mp.get_context("forkserver").Pool(args.workers, initializer=_init) as pool:
-        for servo_name, servo in SERVOS.items():
+    for servo_name, servo in SERVOS.items():
+        with EpisodeRunner(CONTROLLERS, workers=args.workers, servo=servo) as runner:
             for task in TASKS:
                 for body, d in designs.items():
-                    jobs = [(task, servo.model, servo.stall_torque, d.as_tuple(), s) for s in seeds]
-                    R = pool.map(_episode, jobs, chunksize=8)
+                    R = runner.run(d, [task], 0, args.episodes, args.seed)[task].tolist()
                     cells.setdefault(servo_name, {}).setdefault(task, {})[body] = R
                     print(f"{servo_name:26} {task:14} {body:20} R {np.mean(R):.3f} "
                           f"({time.monotonic() - started:.0f} s)", flush=True)
