@@ -315,12 +315,13 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
                "--policy", policy, *stack.host_args(), *(extra or [])]
         code = subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
         stack.close()  # the world writes how far it fell behind real time as it stops
+        logs = {name: (Path(tmp) / name).read_text() for name in ("world.log", "agent.log")
+                if (Path(tmp) / name).is_file()}
         if out.is_dir():
             (out / "twin.json").write_text(json.dumps({"servo": servo.as_dict()}) + "\n")
-            for name in ("world.log", "agent.log"):
-                if (Path(tmp) / name).is_file():
-                    (out / f"twin-{name}").write_text((Path(tmp) / name).read_text())
-        timing = [line for line in (Path(tmp) / "world.log").read_text().splitlines() if line.startswith("world:")]
+            for name, text in logs.items():
+                (out / f"twin-{name}").write_text(text)
+        timing = [line for line in logs.get("world.log", "").splitlines() if line.startswith("world:")]
         if timing:
             print(timing[-1], flush=True)  # how well this machine kept the twin in real time
         return code

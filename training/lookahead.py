@@ -93,9 +93,10 @@ def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: i
     snap = env.snapshot()
     best, best_action = -np.inf, ALL_ACTIONS[4]
     try:
+        futures = max(draws, 1)
         for action in ALL_ACTIONS:
             total = 0.0
-            for draw in range(max(draws, 1)):
+            for draw in range(futures):
                 env.restore(snap)
                 if draws:
                     env.reseed_motor_noise([seed, step, draw])
@@ -105,8 +106,8 @@ def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: i
                 after, _, _, _, info = env.step(np.array(action))
                 total += (float(info["final_R"]) if step + 1 >= env.episode_steps
                           else _finish(env, follower, after, step + 1))
-            if total / max(draws, 1) > best:
-                best, best_action = total / max(draws, 1), action
+            if total / futures > best:
+                best, best_action = total / futures, action
         env.restore(snap)
     finally:
         env.release(snap)

@@ -98,13 +98,14 @@ def test_that_the_memory_input_holds_gotos_own_motion_estimates_at_every_step(dr
     """The memory layout's last three numbers are what goto has learnt by that step,
     whoever drives: they are rebuilt from the commands the observations carry."""
     env = TumblerEnv(task="nav-flat", design=XI3)
-    memory = ObservationContext("memory")
+    memory, context = ObservationContext("memory"), ObservationContext("context")
     goto = GotoController()
     rng = np.random.default_rng(5)
     try:
         for seed in range(3):
             obs, _ = env.reset(seed=seed)
             memory.reset(XI3.as_tuple())
+            context.reset(XI3.as_tuple())
             goto.reset()
             for step in range(20):
                 x = memory(obs)
@@ -113,7 +114,7 @@ def test_that_the_memory_input_holds_gotos_own_motion_estimates_at_every_step(dr
                     action = (int(rng.integers(3)), int(rng.integers(3)))
                     goto.taken(action)
                 assert x.shape == (len(LAYOUTS["memory"]),)
-                np.testing.assert_array_equal(x[:len(LAYOUTS["context"])], x[:23])
+                np.testing.assert_array_equal(x[:len(LAYOUTS["context"])], context(obs))  # context, then memory
                 np.testing.assert_allclose(x[-3:], goto.motion.as_array(), rtol=1e-6, atol=1e-7)
                 obs, *_ = env.step(np.array(action))
     finally:
@@ -311,16 +312,21 @@ def _final_after(env: TumblerEnv, snap: Any, goto: GotoController, obs: np.ndarr
     return float(info["final_R"])
 
 
+def _drive_to_step_17(env: TumblerEnv, seed: int) -> tuple[np.ndarray, GotoController]:
+    obs, _ = env.reset(seed=seed)
+    goto = GotoController()
+    for step in range(17):
+        obs, *_ = env.step(np.array(goto.act(obs, step)))
+    return obs, goto
+
+
 def test_that_the_lookahead_search_never_picks_an_action_worse_than_gotos() -> None:
     from tumblebot.training.lookahead import _search
 
     env = TumblerEnv(task="nav-flat", design=XI3)
     try:
         for seed in range(3):
-            obs, _ = env.reset(seed=seed)
-            goto = GotoController()
-            for step in range(17):  # goto drives to the last three steps
-                obs, *_ = env.step(np.array(goto.act(obs, step)))
+            obs, goto = _drive_to_step_17(env, seed)  # goto drives to the last three steps
             snap = env.snapshot()
             chosen = _search(env, goto, obs, 17)
             plain = copy.deepcopy(goto).act(obs, 17)
@@ -329,14 +335,6 @@ def test_that_the_lookahead_search_never_picks_an_action_worse_than_gotos() -> N
             env.release(snap)
     finally:
         env.close()
-
-
-def _drive_to_step_17(env: TumblerEnv, seed: int) -> tuple[np.ndarray, GotoController]:
-    obs, _ = env.reset(seed=seed)
-    goto = GotoController()
-    for step in range(17):
-        obs, *_ = env.step(np.array(goto.act(obs, step)))
-    return obs, goto
 
 
 def test_that_reseeding_the_motor_noise_draws_a_future_other_than_the_episodes_own() -> None:
