@@ -5,7 +5,7 @@ Every inference outside training (evaluation, optimisation, the host) goes throu
 ``POLICY.onnx``) says which task and observation layout the network expects, and holds
 the SHA-256 of the ONNX file; loading checks all three.
 
-Three observation layouts exist (:data:`LAYOUTS`):
+Four observation layouts exist (:data:`LAYOUTS`):
 
 * ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
 * ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
@@ -17,6 +17,11 @@ Three observation layouts exist (:data:`LAYOUTS`):
   :class:`tumblebot.sim.goto.MotionMemory`): the running estimates of a drive step's
   length (m) and of each spin's yaw change (rad), learnt from every step so far, with the
   action of each step read from the command the next observation carries.
+* ``residual``: ``memory``, then the action ``goto`` itself would take now
+  (:data:`RESIDUAL_FIELDS`, each leg's command 0/1/2; :class:`tumblebot.sim.goto.GotoController`
+  with the settings in :data:`RESIDUAL_GOTO`, told every step the action actually taken).
+  A policy with this input starts from the hand-written controller's choice and learns
+  where to deviate from it (residual policy learning).
 
 Callers always hand :meth:`OnnxPolicy.act` the thesis observation; the policy builds the
 rest itself (:class:`ObservationContext`), given the design at :meth:`OnnxPolicy.reset`,
@@ -42,8 +47,14 @@ POSITION, QUATERNION, COMMAND = slice(0, 3), slice(3, 7), slice(7, 9)  #: where 
 CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
                                    *(f"prev_{name}" for name in OBS_LAYOUT))
 MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
+RESIDUAL_FIELDS: tuple[str, ...] = ("goto_right", "goto_left")
 LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
-                                       "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS}
+                                       "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS,
+                                       "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS}
+#: The settings of the ``goto`` whose action a ``residual`` policy is given, pinned here
+#: (not goto's defaults) so that a trained policy's input never changes under it.
+RESIDUAL_GOTO: dict[str, Any] = {"turn_tolerance": 0.4, "stop_fraction": 0.5, "margin": 0.02, "memory": 0.5,
+                                   "spin_steps_left": 2}
 EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 
@@ -102,10 +113,15 @@ class ObservationContext:
         self._design: np.ndarray | None = None
         self._previous: np.ndarray | None = None
         self._motion: Any = None
+        self._goto: Any = None
         if layout == "memory":
             from tumblebot.sim.goto import MotionMemory  # goto imports this module
 
             self._motion = MotionMemory()
+        elif layout == "residual":
+            from tumblebot.sim.goto import GotoConfig, GotoController
+
+            self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **RESIDUAL_GOTO))
         self.step = 0
 
     @property
@@ -124,6 +140,8 @@ class ObservationContext:
         self._previous = None
         if self._motion is not None:
             self._motion.reset()
+        if self._goto is not None:
+            self._goto.reset()
         self.step = 0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -136,23 +154,37 @@ class ObservationContext:
             raise PolicyError("call reset(design) at the start of every episode or trial")
         previous = obs if self._previous is None else self._previous
         steps_left = max(self.episode_steps - self.step, 0) / self.episode_steps
-        self._previous = obs
+        step, self._previous = self.step, obs
         self.step += 1
         time_left = np.array([steps_left], dtype=np.float32)
         parts = [obs, self._design, time_left, previous]
         if self._motion is not None:
-            parts.append(self._remember(obs, first=self.step == 1))
+            parts.append(self._remember(obs, first=step == 0))
+        if self._goto is not None:
+            parts.extend(self._propose(obs, step))
         return np.concatenate(parts).astype(np.float32)
 
+    @staticmethod
+    def _taken(obs: np.ndarray) -> tuple[int, int]:
+        """The action of the step before ``obs``: the command it carries (−1, 0, 1 per
+        leg → 0, 1, 2)."""
+        command = np.clip(np.rint(obs[COMMAND]).astype(int) + 1, 0, 2)
+        return int(command[0]), int(command[1])
+
     def _remember(self, obs: np.ndarray, first: bool) -> np.ndarray:
-        """The motion estimates after this observation; the action since the last one is
-        the command it carries (−1, 0, 1 per leg → 0, 1, 2)."""
+        """The motion estimates after this observation."""
         from tumblebot.sim.goto import heading
 
-        command = np.rint(obs[COMMAND]).astype(int) + 1
-        action = None if first else (int(np.clip(command[0], 0, 2)), int(np.clip(command[1], 0, 2)))
+        action = None if first else self._taken(obs)
         self._motion.observe(obs[POSITION][:2].astype(float), heading(obs[QUATERNION]), action)
         return np.asarray(self._motion.as_array(), dtype=np.float32)
+
+    def _propose(self, obs: np.ndarray, step: int) -> list[np.ndarray]:
+        """goto's motion estimates and its action now, told what was actually done last step."""
+        if step > 0:
+            self._goto.taken(self._taken(obs))
+        action = self._goto.act(obs.astype(float), min(step, self.episode_steps - 1))
+        return [np.asarray(self._goto.motion.as_array(), dtype=np.float32), np.asarray(action, dtype=np.float32)]
 
 
 class OnnxPolicy:

@@ -42,7 +42,8 @@ class TrainConfig:
         init_from_steps: training steps that checkpoint had already taken.
         observation: the policy's input layout, ``"thesis"`` (the thesis's 9 numbers) or
             ``"context"`` (those plus the design, the steps left and the previous
-            observation) or ``"memory"`` (``context`` plus goto's motion estimates;
+            observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
+            ``"residual"`` (``memory`` plus goto's proposed action;
             :data:`tumblebot.sim.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used

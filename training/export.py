@@ -37,6 +37,10 @@ OBSERVATION_NOTES = {
                "so far (a drive step's length in m, each spin's yaw change in rad; MotionMemory, from the "
                "commands the observations carry); OnnxPolicy builds it from the thesis observation and the "
                "design given at reset"),
+    "residual": ("the memory observation, then the action goto would take now (each leg's command 0/1/2; "
+                 "goto with the settings pinned in tumblebot.sim.policy.RESIDUAL_GOTO, told the action actually "
+                 "taken every step): the policy learns where to deviate from the hand-written controller; "
+                 "OnnxPolicy builds it from the thesis observation and the design given at reset"),
 }
 
 

@@ -15,7 +15,8 @@ features of the current and of the previous observation, then the design scaled 
 ``1/DESIGN_SCALE``, the fraction of the episode left, and the step's planar displacement
 scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those, then
 goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
-``MEMORY_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
+``MEMORY_FEATURE_NAMES``). A ``residual`` policy gets those, then goto's proposed action,
+each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
 training environments with the same :class:`ObservationContext` the deployed policy uses.
 """
 
@@ -45,6 +46,8 @@ CONTEXT_FEATURE_NAMES: tuple[str, ...] = (
 )
 MEMORY_FEATURE_NAMES: tuple[str, ...] = (*CONTEXT_FEATURE_NAMES, "memory_step_length", "memory_spin_positive",
                                          "memory_spin_negative")
+RESIDUAL_FEATURE_NAMES: tuple[str, ...] = (*MEMORY_FEATURE_NAMES, *(f"goto_{leg}_{command}" for leg in ("right", "left")
+                                                                    for command in ("reverse", "stop", "forward")))
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 _THESIS = len(OBS_LAYOUT)
@@ -104,25 +107,42 @@ class MemoryFeatures(nn.Module):
         return torch.cat([self.context(obs[:, :self._context_size]), scaled], dim=-1)
 
 
+class ResidualFeatures(nn.Module):
+    """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.memory = MemoryFeatures()
+        self._memory_size = len(LAYOUTS["memory"])
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        proposal = obs[:, self._memory_size:self._memory_size + 2]
+        one_hot = [(torch.abs(proposal[:, leg:leg + 1] - command) < 0.5).to(obs.dtype)
+                   for leg in range(2) for command in range(3)]
+        return torch.cat([self.memory(obs[:, :self._memory_size]), *one_hot], dim=-1)
+
+
+_FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
+    "thesis": (ObservationFeatures, FEATURE_NAMES), "context": (ContextFeatures, CONTEXT_FEATURE_NAMES),
+    "memory": (MemoryFeatures, MEMORY_FEATURE_NAMES), "residual": (ResidualFeatures, RESIDUAL_FEATURE_NAMES),
+}
+
+
 def feature_names(layout: str) -> tuple[str, ...]:
     """What the feature layer of a ``layout`` policy computes, in order."""
-    return {"thesis": FEATURE_NAMES, "context": CONTEXT_FEATURE_NAMES, "memory": MEMORY_FEATURE_NAMES}[layout]
+    return _FEATURES[layout][1]
 
 
 def features_for(size: int) -> tuple[nn.Module, int]:
     """The feature layer for an input of ``size`` numbers, and its output size."""
-    if size == len(LAYOUTS["thesis"]):
-        return ObservationFeatures(), len(FEATURE_NAMES)
-    if size == len(LAYOUTS["context"]):
-        return ContextFeatures(), len(CONTEXT_FEATURE_NAMES)
-    if size == len(LAYOUTS["memory"]):
-        return MemoryFeatures(), len(MEMORY_FEATURE_NAMES)
+    for layout, (module, names) in _FEATURES.items():
+        if size == len(LAYOUTS[layout]):
+            return module(), len(names)
     raise ValueError(f"no feature layer for a {size}-number observation")
 
 
 class TumblerFeaturesExtractor(BaseFeaturesExtractor):
-    """SB3 features extractor: :class:`ObservationFeatures` or :class:`ContextFeatures`,
-    by the observation's size."""
+    """SB3 features extractor: the feature layer of the observation's layout, found by its size."""
 
     def __init__(self, observation_space: gym.spaces.Box) -> None:
         features, size = features_for(int(observation_space.shape[0]))
@@ -135,7 +155,7 @@ class TumblerFeaturesExtractor(BaseFeaturesExtractor):
 
 
 class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
-    """A training environment whose observation is the ``context`` (or ``memory``) layout.
+    """A training environment whose observation is a ``context``, ``memory`` or ``residual`` layout.
 
     The input is built by :class:`ObservationContext`, exactly as :class:`OnnxPolicy`
     builds it when deployed. Since the steps left are part of the observation, the end

@@ -124,12 +124,62 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
                  np.asarray(returns, dtype=np.float32), agree / total if total else float("nan"), final, shaped)
 
 
-def fit(model: object, optimiser: torch.optim.Optimizer, inputs: np.ndarray, labels: np.ndarray,
-        returns: np.ndarray, config: ImitationConfig, seed: int, stop: StopRequest) -> float:
-    """Cross-entropy on the labels plus squared error on the returns, ``updates`` steps of
-    minibatches drawn with replacement; returns the last 200 steps' mean cross-entropy."""
+SEARCH_TARGETS = ("best", "expected")
+#: ``expected`` target: the mean-score advantage is multiplied by ``ADVANTAGE_SCALE`` and
+#: cross-entropy toward goto's own action added with weight ``GOTO_WEIGHT``. Between goto's
+#: action and one ``Δ`` better, the loss is least where the other has probability
+#: ``1 − GOTO_WEIGHT / (ADVANTAGE_SCALE · Δ)``: the student leaves goto's action where
+#: another scores better on average by more than ``2 · GOTO_WEIGHT / ADVANTAGE_SCALE``,
+#: a hundredth of R.
+ADVANTAGE_SCALE = 10.0
+GOTO_WEIGHT = 0.05
+
+
+@dataclass
+class Labelled:
+    """Labelled states of one iteration (or the run a refine starts from)."""
+
+    inputs: np.ndarray  #: (N, size) policy inputs
+    labels: np.ndarray  #: (N, 2) the teacher's action: goto's, or the search's best
+    returns: np.ndarray  #: (N,) discounted shaped return from that state on
+    goto_labels: np.ndarray  #: (N, 2) goto's own action
+    values: np.ndarray  #: (N, 9) each action's mean score where searched, else NaN
+
+    @classmethod
+    def of_goto(cls, inputs: np.ndarray, labels: np.ndarray, returns: np.ndarray) -> Labelled:
+        return cls(inputs, labels, returns, labels, np.full((len(labels), 9), np.nan, dtype=np.float32))
+
+    @classmethod
+    def concatenate(cls, parts: list[Labelled]) -> Labelled:
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                     ("inputs", "labels", "returns", "goto_labels", "values")))
+
+
+def _joint_log_probs(policy: Any, x: torch.Tensor) -> torch.Tensor:
+    """``(B, 9)`` log-probabilities of the joint actions (right, left) in
+    :data:`tumblebot.training.lookahead.ALL_ACTIONS` order."""
+    right, left = (d.logits for d in policy.get_distribution(x).distribution)
+    joint: torch.Tensor = (right[:, :, None] + left[:, None, :]).reshape(-1, 9)
+    return joint
+
+
+def fit(model: object, optimiser: torch.optim.Optimizer, data: Labelled, config: ImitationConfig, seed: int,
+        stop: StopRequest, target: str = "best") -> float:
+    """``updates`` steps of minibatches drawn with replacement, each minimising the action
+    loss plus squared error on the returns; returns the last 200 steps' mean action loss.
+
+    The action loss is cross-entropy toward ``labels``, except on searched states with
+    ``target="expected"``: there it is minus the expected advantage of the student's action
+    distribution (each action's mean score less their mean, times :data:`ADVANTAGE_SCALE`)
+    plus cross-entropy toward goto's own action, weighted by :data:`GOTO_WEIGHT`."""
+    if target not in SEARCH_TARGETS:
+        raise TrainingError(f"search target {target!r} must be one of: {', '.join(SEARCH_TARGETS)}")
     policy = model.policy  # type: ignore[attr-defined]
-    x, a, g = torch.as_tensor(inputs), torch.as_tensor(labels), torch.as_tensor(returns)
+    x, a, g = torch.as_tensor(data.inputs), torch.as_tensor(data.labels), torch.as_tensor(data.returns)
+    own = torch.as_tensor(data.goto_labels)
+    searched = torch.as_tensor(np.isfinite(data.values[:, 0]) & (target == "expected"))
+    values = torch.as_tensor(np.nan_to_num(data.values, nan=0.0))
+    advantage = ADVANTAGE_SCALE * (values - values.mean(dim=1, keepdim=True))
     rng = np.random.default_rng(seed)
     policy.set_training_mode(True)
     recent: list[float] = []
@@ -137,14 +187,21 @@ def fit(model: object, optimiser: torch.optim.Optimizer, inputs: np.ndarray, lab
         if stop.signum is not None:
             raise KeyboardInterrupt
         idx = torch.as_tensor(rng.integers(0, len(x), config.batch_size))
-        values, log_prob, _ = policy.evaluate_actions(x[idx], a[idx])
-        cross_entropy = -log_prob.mean()
-        loss = cross_entropy + 0.5 * torch.nn.functional.mse_loss(values.flatten(), g[idx])
+        chosen = torch.where(searched[idx, None], own[idx], a[idx])  # goto's own action in the search
+        state_values, log_prob, _ = policy.evaluate_actions(x[idx], chosen)
+        in_search = searched[idx]
+        action_loss = -log_prob * torch.where(in_search, GOTO_WEIGHT, 1.0)
+        if bool(in_search.any()):
+            rows = idx[in_search]
+            expected = (torch.exp(_joint_log_probs(policy, x[rows])) * advantage[rows]).sum(dim=1)
+            action_loss = action_loss.clone()
+            action_loss[in_search] = action_loss[in_search] - expected
+        loss = action_loss.mean() + 0.5 * torch.nn.functional.mse_loss(state_values.flatten(), g[idx])
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(policy.parameters(), 1.0)
         optimiser.step()
-        recent = [*recent[-199:], float(cross_entropy.detach())]
+        recent = [*recent[-199:], float(action_loss.mean().detach())]
     policy.set_training_mode(False)
     return float(np.mean(recent))
 
@@ -203,8 +260,8 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     """Check the run can start, then write its config (rewritten with the steps taken at
     the end) and ``imitation.json``: the DAgger settings and the teacher."""
     if config.observation == "thesis":
-        raise TrainingError("imitation needs the context or memory observation (goto uses memory the thesis's "
-                            "9 numbers lack)")
+        raise TrainingError("imitation needs the context, memory or residual observation (goto uses memory "
+                            "the thesis's 9 numbers lack)")
     from tumblebot.sim.goto import check_navigation_task
 
     check_navigation_task(config.task)
@@ -216,14 +273,14 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     (run_dir / "imitation.json").write_text(json.dumps(record, indent=2) + "\n")
 
 
-def _fit_and_save(model: Any, optimiser: torch.optim.Optimizer,
-                  data: list[tuple[np.ndarray, np.ndarray, np.ndarray]], imitation: ImitationConfig, seed: int,
-                  stop: StopRequest, run_dir: Path) -> tuple[int, float]:
-    """Aggregate ``data`` (inputs, labels, returns per iteration), save it as
-    ``dagger.npz``, fit the student to it; returns the dataset size and the cross-entropy."""
-    inputs, labels, returns = (np.concatenate([d[k] for d in data]) for k in range(3))
-    np.savez_compressed(run_dir / "dagger.npz", inputs=inputs, labels=labels, returns=returns)
-    return len(labels), fit(model, optimiser, inputs, labels, returns, imitation, seed, stop)
+def _fit_and_save(model: Any, optimiser: torch.optim.Optimizer, parts: list[Labelled], imitation: ImitationConfig,
+                  seed: int, stop: StopRequest, run_dir: Path, target: str = "best") -> tuple[int, float]:
+    """Aggregate ``parts`` (one per iteration), save them as ``dagger.npz``, fit the
+    student to them; returns the dataset size and the action loss."""
+    data = Labelled.concatenate(parts)
+    np.savez_compressed(run_dir / "dagger.npz", inputs=data.inputs, labels=data.labels, returns=data.returns,
+                        goto_labels=data.goto_labels, values=data.values)
+    return len(data.labels), fit(model, optimiser, data, imitation, seed, stop, target)
 
 
 def _end_iteration(model: Any, run_dir: Path, logs: _RunLogs, summary: IterationSummary, batch: Batch, steps: int,
@@ -254,7 +311,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     model = new_model(config, env, run_dir)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
     start, steps = time.monotonic(), 0
-    data: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    data: list[Labelled] = []
     logs = _RunLogs(run_dir)
     with stop_requests() as stop:
         try:
@@ -264,7 +321,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
                           desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
                     batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS,
                                     stop, bar)
-                data.append((batch.inputs, batch.labels, batch.returns))
+                data.append(Labelled.of_goto(batch.inputs, batch.labels, batch.returns))
                 steps += len(batch.labels)
                 dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,
                                               run_dir)
@@ -318,12 +375,15 @@ def _summarise(records: list[Any], iteration: int, dataset: int, loss: float, wa
 
 
 def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int, workers: int,
-           on_iteration: Callable[[IterationSummary], None] | None = None, draws: int = 0) -> Path:
+           on_iteration: Callable[[IterationSummary], None] | None = None, draws: int = 0,
+           target: str = "best") -> Path:
     """DAgger toward ``goto`` with a search over the last ``horizon`` steps
     (:mod:`tumblebot.training.lookahead`; clairvoyant with ``draws = 0``, else each action
     scored over ``draws`` futures drawn anew), from the imitation run ``source``: its weights,
     and its goto-labelled states before that window (the teacher is goto there too). The
-    student drives every iteration; returns the new run's checkpoint."""
+    student learns the search's best action (``target="best"``) or the action with the best
+    mean score in states it cannot tell apart (``"expected"``, :func:`fit`). The student
+    drives every iteration; returns the new run's checkpoint."""
     from stable_baselines3 import PPO
 
     from tumblebot.sim.policy import LAYOUTS
@@ -331,18 +391,21 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
     from tumblebot.training.lookahead import WorkerSpec
 
     config = TrainConfig.load(source / "config.json")
+    if target not in SEARCH_TARGETS:
+        raise TrainingError(f"search target {target!r} must be one of: {', '.join(SEARCH_TARGETS)}")
     if not 1 <= horizon <= EPISODE_STEPS:
         raise TrainingError(f"--lookahead {horizon} must be 1–{EPISODE_STEPS} steps")
     if not (source / "dagger.npz").is_file():
         raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
     config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps
     _new_run(config, imitation, run_dir, {"kind": "goto+search", "lookahead": horizon, "draws": draws,
-                                          "future": "drawn anew" if draws else "the episode's own (clairvoyant)"})
+                                          "future": "drawn anew" if draws else "the episode's own (clairvoyant)",
+                                          "target": target})
     torch.set_num_threads(1)
     model = PPO.load(source / "latest.zip", device="cpu")
     old = np.load(source / "dagger.npz")
     before = old["inputs"][:, LAYOUTS["context"].index("steps_left")] > horizon / EPISODE_STEPS + 1e-6
-    data = [(old["inputs"][before], old["labels"][before], old["returns"][before])]
+    data = [Labelled.of_goto(old["inputs"][before], old["labels"][before], old["returns"][before])]
     spec = WorkerSpec(config.task, config.tumbling_designs_only, config.motor_model, config.stall_torque,
                       config.state_weight, config.progress_weight, horizon, draws)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
@@ -356,11 +419,12 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
                 write_card(student, config.task, steps, config)
                 records = _lookahead_episodes(spec, student, config.seed, iteration, imitation, workers, stop)
                 returns = [_discounted(record.rewards, config.gamma) for record in records]
-                data.append((np.concatenate([r.inputs for r in records]),
-                             np.concatenate([r.labels for r in records]), np.concatenate(returns)))
+                data.append(Labelled(*(np.concatenate(parts) for parts in (
+                    [r.inputs for r in records], [r.labels for r in records], returns,
+                    [r.goto_labels for r in records], [r.values for r in records]))))
                 steps += sum(len(r.labels) for r in records)
                 dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,
-                                              run_dir)
+                                              run_dir, target)
                 summary, batch = _summarise(records, iteration, dataset, loss, time.monotonic() - start)
                 _end_iteration(model, run_dir, logs, summary, batch, steps, on_iteration)
         except KeyboardInterrupt:

@@ -10,8 +10,15 @@ the teacher sees a future no policy can see ("learning by cheating"); with ``dra
 each action is scored by the mean final R over ``K`` futures drawn anew
 (:meth:`TumblerEnv.reseed_motor_noise`; the same ``K`` for every action), so the teacher
 no longer sees the noise to come, only the hidden state (leg angles, masses, friction).
-Either way the student, which sees only its observation, learns the action that is best
-on average in states like it. Earlier steps are labelled by ``goto`` itself.
+Earlier steps are labelled by ``goto`` itself.
+
+The search also records every action's score (:attr:`EpisodeRecord.values`). A student that
+copies the best action (target ``best``) learns the action that is *most often* best in
+states that look alike to it, which need not be the one best *on average* when the best
+action depends on what it cannot see (leg angles); on the thesis's ξ = 3 robot that
+student fell 0.05 below goto. Target ``expected`` (:func:`tumblebot.training.imitation.fit`)
+instead maximises each action's mean score under the student's own action distribution,
+so over states it cannot tell apart it picks the action with the best mean score.
 
 Episodes run in worker processes (each with its own environment, the student as an ONNX
 file exported by the caller, and the teacher), since the search needs an environment of
@@ -41,6 +48,8 @@ class EpisodeRecord:
 
     inputs: np.ndarray
     labels: np.ndarray
+    goto_labels: np.ndarray  #: goto's own action at every step (the label outside the search)
+    values: np.ndarray  #: (steps, 9) each action's mean final R in :data:`ALL_ACTIONS` order; NaN unsearched
     rewards: np.ndarray
     final_R: float
     agreed: int  #: steps where the student's action was the label
@@ -90,8 +99,15 @@ def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: i
     """The action whose episode, continued by ``goto``, ends with the best final R: in
     the episode's own future (``draws = 0``), or on average over ``draws`` futures drawn
     from ``seed`` and ``step``."""
+    return search_values(env, goto, obs, step, draws, seed)[0]
+
+
+def search_values(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: int = 0,
+                  seed: int = 0) -> tuple[tuple[int, int], np.ndarray]:
+    """:func:`_search`'s action, and every action's mean final R (:data:`ALL_ACTIONS` order)."""
     snap = env.snapshot()
     best, best_action = -np.inf, ALL_ACTIONS[4]
+    values = np.empty(len(ALL_ACTIONS))
     try:
         futures = max(draws, 1)
         for action in ALL_ACTIONS:
@@ -106,12 +122,13 @@ def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: i
                 after, _, _, _, info = env.step(np.array(action))
                 total += (float(info["final_R"]) if step + 1 >= env.episode_steps
                           else _finish(env, follower, after, step + 1))
+            values[ALL_ACTIONS.index(action)] = total / futures
             if total / futures > best:
                 best, best_action = total / futures, action
         env.restore(snap)
     finally:
         env.release(snap)
-    return best_action
+    return best_action, values
 
 
 def _episode(seed: int) -> EpisodeRecord:
@@ -120,17 +137,21 @@ def _episode(seed: int) -> EpisodeRecord:
     goto = GotoController()
     if student is not None:
         student.reset(env.design.as_tuple())
-    inputs, labels, rewards = [], [], []
+    inputs, labels, goto_labels, values, rewards = [], [], [], [], []
     agreed = searched = 0
     info: dict[str, Any] = {}
+    unsearched = np.full(len(ALL_ACTIONS), np.nan)
     for step in range(env.episode_steps):
         x = student.context(obs) if student is not None else None  # the student's input, built as when deployed
         if step >= env.episode_steps - spec.horizon:
-            label = _search(env, goto, obs, step, spec.draws, seed)
-            goto.act(obs, step)
+            label, scores = search_values(env, goto, obs, step, spec.draws, seed)
+            own = goto.act(obs, step)
             searched += 1
         else:
-            label = goto.act(obs, step)
+            label = own = goto.act(obs, step)
+            scores = unsearched
+        goto_labels.append(own)
+        values.append(scores)
         action = label
         if x is not None:
             inputs.append(x)
@@ -142,6 +163,7 @@ def _episode(seed: int) -> EpisodeRecord:
         obs, reward, _, _, info = env.step(np.array(action))
         rewards.append(reward)
     return EpisodeRecord(np.asarray(inputs, dtype=np.float32), np.asarray(labels, dtype=np.int64),
+                         np.asarray(goto_labels, dtype=np.int64), np.asarray(values, dtype=np.float32),
                          np.asarray(rewards, dtype=np.float64), float(info["final_R"]), agreed, searched)
 
 

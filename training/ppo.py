@@ -61,7 +61,7 @@ def make_env(task: str, state_weight: float, progress_weight: float,
              stall_torque: float = STALL_TORQUE, observation: str = "thesis",
              design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
-    or ``"memory"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
+    ``"memory"`` or ``"residual"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
     from tumblebot.sim.design import Design
 
     torch.set_num_threads(1)

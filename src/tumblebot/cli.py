@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeAlias
 
-from tumblebot.defaults import MAX_STALL_TORQUE, XI3_ROBOT_TEXT
+from tumblebot.defaults import MAX_STALL_TORQUE, OBSERVATION_LAYOUTS, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
 #: The tasks, for help texts (tumblebot.sim.tasks.TASKS is the source, and a test keeps the two
@@ -214,11 +214,13 @@ def _refine(args: argparse.Namespace) -> int:
     settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
     workers = args.envs if args.envs is not None else (os.cpu_count() or 1)
     future = f"the mean of {args.draws} futures drawn anew" if args.draws else "the episode's own future"
-    print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead over {future}: "
+    print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead over {future} "
+          f"(target: {args.search_target}): "
           f"{settings.iterations} iterations of {settings.episodes} episodes, {workers} workers, in {args.run_dir}")
     try:
         final = refine(args.refine, args.run_dir, settings, args.lookahead, workers,
-                       on_iteration=lambda summary: print(summary.describe(), flush=True), draws=args.draws)
+                       on_iteration=lambda summary: print(summary.describe(), flush=True), draws=args.draws,
+                       target=args.search_target)
     except TrainingInterrupted as stopped:
         print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration",
               file=sys.stderr)
@@ -663,17 +665,17 @@ def _add_train_command(sub: Subcommands) -> None:
                    help="start a new run from the weights of another run's checkpoint (e.g. "
                         "runs/distance-flat/latest.zip for incline); the networks must match, and the "
                         "observation, net_arch, servo and design draw default to that run's")
-    p.add_argument("--observation", choices=("thesis", "context", "memory"), default=None,
+    p.add_argument("--observation", choices=OBSERVATION_LAYOUTS, default=None,
                    help="policy input: the thesis's 9 numbers; context: those plus the design, the steps left "
-                        "and the previous observation; memory: context plus goto's motion estimates "
-                        "(default thesis)")
+                        "and the previous observation; memory: context plus goto's motion estimates; residual: "
+                        "memory plus the action goto would take (default thesis)")
     p.set_defaults(func=_train)
 
 
 def _add_imitate_command(sub: Subcommands) -> None:
     """The ``imitate`` command."""
     p = sub.add_parser("imitate", help="behaviour-clone the goto controller (DAgger): a warm start for train",
-                       description="Train a context- or memory-observation policy to do what the goto "
+                       description="Train a context-, memory- or residual-observation policy to do what the goto "
                                    "controller would, with DAgger: goto drives the first iteration, the student "
                                    "the rest, and goto labels every state. The run folder is a training run: "
                                    "export it, or fine-tune it with tumblebot train --init-from RUN/latest.zip.")
@@ -685,9 +687,10 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="gradient steps after each iteration (default 4000)")
     p.add_argument("--net-arch", type=_net_arch, default=[256, 256], metavar="N,N",
                    help="hidden layer sizes (default 256,256)")
-    p.add_argument("--observation", choices=("context", "memory"), default="context",
+    p.add_argument("--observation", choices=OBSERVATION_LAYOUTS[1:], default="context",
                    help="student input: context (the thesis's 9 numbers, the design, the steps left, the previous "
-                        "observation) or memory (context plus goto's motion estimates; default context)")
+                        "observation), memory (context plus goto's motion estimates) or residual (memory plus the "
+                        "action goto would take; default context)")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     _add_servo_arguments(p)
@@ -700,6 +703,12 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="with --refine: score each action by the mean over K futures of motor noise and latency "
                         "drawn anew, so the teacher does not see the noise to come (default 0: the episode's own "
                         "future, clairvoyant)")
+    p.add_argument("--search-target", choices=("best", "expected"), default="best",
+                   help="with --refine: what the student learns in the searched steps: best, the action the "
+                        "search found best in each state; expected, the action with the best mean score over the "
+                        "states the student cannot tell apart (it maximises the scores' expectation under its own "
+                        "action distribution, and keeps goto's action unless another is more than 0.01 R better; "
+                        "default best)")
     p.set_defaults(func=_imitate)
 
 

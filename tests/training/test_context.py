@@ -121,20 +121,60 @@ def test_that_the_memory_input_holds_gotos_own_motion_estimates_at_every_step(dr
         env.close()
 
 
-def test_that_a_memory_policy_exports_runs_and_matches_its_network(tmp_path: Path) -> None:
-    run, out = tmp_path / "mem", tmp_path / "nav-flat.onnx"
+@pytest.mark.parametrize("driver", ["goto", "random"])
+def test_that_the_residual_input_holds_the_action_goto_would_take_at_every_step(driver: str) -> None:
+    """The residual layout is the memory layout, then goto's own choice for this step,
+    told what was actually done before (whoever drives)."""
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    residual, memory = ObservationContext("residual"), ObservationContext("memory")
+    goto = GotoController()
+    rng = np.random.default_rng(6)
+    try:
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            residual.reset(XI3.as_tuple())
+            memory.reset(XI3.as_tuple())
+            goto.reset()
+            for step in range(20):
+                x = residual(obs)
+                action = goto.act(obs, step)
+                assert x.shape == (len(LAYOUTS["residual"]),)
+                np.testing.assert_allclose(x[:len(LAYOUTS["memory"])], memory(obs), rtol=1e-6, atol=1e-7)
+                assert (int(x[-2]), int(x[-1])) == action
+                if driver == "random":
+                    action = (int(rng.integers(3)), int(rng.integers(3)))
+                    goto.taken(action)
+                obs, *_ = env.step(np.array(action))
+    finally:
+        env.close()
+
+
+def test_that_the_residual_layouts_goto_is_pinned_to_the_settings_it_was_trained_with() -> None:
+    from tumblebot.defaults import OBSERVATION_LAYOUTS
+    from tumblebot.sim.goto import GotoConfig
+    from tumblebot.sim.policy import RESIDUAL_GOTO
+
+    assert tuple(LAYOUTS) == OBSERVATION_LAYOUTS
+    assert GotoConfig(**RESIDUAL_GOTO) == GotoConfig(spin_steps_left=2)
+
+
+@pytest.mark.parametrize("layout", ["memory", "residual"])
+def test_that_a_memory_or_residual_policy_exports_runs_and_matches_its_network(layout: str, tmp_path: Path) -> None:
+    run, out = tmp_path / layout, tmp_path / "nav-flat.onnx"
     assert main(["imitate", "--run-dir", str(run), "--iterations", "1", "--episodes", "2", "--updates", "10",
-                 "--net-arch", "16,16", "--envs", "1", "--observation", "memory"]) == 0
-    assert TrainConfig.load(run / "config.json").observation == "memory"
+                 "--net-arch", "16,16", "--envs", "1", "--observation", layout]) == 0
+    assert TrainConfig.load(run / "config.json").observation == layout
     assert main(["export", str(run), "-o", str(out), "--eval-episodes", "0"]) == 0
     card = json.loads(out.with_suffix(".json").read_text())
-    assert card["observation"]["layout"] == "memory" and card["observation"]["fields"] == list(LAYOUTS["memory"])
+    assert card["observation"]["layout"] == layout and card["observation"]["fields"] == list(LAYOUTS[layout])
     assert "memory_spin_negative" in card["observation"]["note"]
     from stable_baselines3 import PPO
 
     model = PPO.load(run / "latest.zip", device="cpu")
     policy = OnnxPolicy(out, task="nav-flat")
-    x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS["memory"]))).astype(np.float32)
+    x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS[layout]))).astype(np.float32)
+    if layout == "residual":  # goto's proposal is a command, 0, 1 or 2 per leg
+        x[:, -2:] = np.random.default_rng(1).integers(0, 3, size=(10_000, 2))
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
     result = evaluate("nav-flat", XI3, Controller("onnx", str(out)), episodes=2, seed=0, workers=1)
     assert np.isfinite(result.mean_R)
@@ -288,7 +328,7 @@ def test_that_refining_toward_the_lookahead_teacher_keeps_goto_labels_before_the
     assert main(["imitate", "--refine", str(tiny_dagger), "--run-dir", str(run), "--iterations", "1",
                  "--episodes", "2", "--updates", "5", "--envs", "1", "--lookahead", "3", "--draws", "1"]) == 0
     teacher = json.loads((run / "imitation.json").read_text())["teacher"]
-    assert teacher == {"kind": "goto+search", "lookahead": 3, "draws": 1, "future": "drawn anew"}
+    assert teacher == {"kind": "goto+search", "lookahead": 3, "draws": 1, "future": "drawn anew", "target": "best"}
     config = TrainConfig.load(run / "config.json")
     assert config.init_from == str(tiny_dagger / "latest.zip") and config.observation == "context"
     data = np.load(run / "dagger.npz")
@@ -297,6 +337,56 @@ def test_that_refining_toward_the_lookahead_teacher_keeps_goto_labels_before_the
     kept = int(np.sum(old["inputs"][:, steps_left] > 3 / 20 + 1e-6))
     assert len(data["labels"]) == kept + 2 * 20  # the old states before the window, and two new episodes
     assert (run / "latest.zip").is_file() and (run / "student.onnx").is_file()
+    searched = np.isfinite(data["values"][:, 0])
+    assert searched.sum() == 2 * 3 and np.all(data["inputs"][searched, steps_left] <= 3 / 20 + 1e-6)
+    np.testing.assert_array_equal(data["labels"][~searched], data["goto_labels"][~searched])
+
+
+def _tiny_model(tmp_path: Path) -> Any:
+    from tumblebot.training.ppo import build_vec_env, new_model
+
+    config = TrainConfig(observation="context", net_arch=[32, 32], n_envs=1)
+    return new_model(config, build_vec_env(config, seed=0), tmp_path)
+
+
+@pytest.mark.parametrize("target", ["best", "expected"])
+def test_that_the_expected_target_picks_the_best_action_on_average_over_states_that_look_alike(
+        target: str, tmp_path: Path) -> None:
+    """Two searched states the student cannot tell apart: in one (2, 2) is best, in the
+    other (0, 0); (1, 1) is second best in both and best on average. ``best`` copies one of
+    the two winners; ``expected`` picks (1, 1)."""
+    import torch
+
+    from tumblebot.training.imitation import ImitationConfig, Labelled, fit
+    from tumblebot.training.lookahead import ALL_ACTIONS
+    from tumblebot.training.ppo import StopRequest
+
+    model = _tiny_model(tmp_path)
+    x = np.repeat(np.random.default_rng(0).normal(size=(1, len(LAYOUTS["context"]))).astype(np.float32), 2, axis=0)
+    values = np.zeros((2, 9), dtype=np.float32)
+    values[:, ALL_ACTIONS.index((1, 1))] = 0.8
+    values[0, ALL_ACTIONS.index((2, 2))] = values[1, ALL_ACTIONS.index((0, 0))] = 1.0
+    data = Labelled(x, np.array([(2, 2), (0, 0)]), np.zeros(2, dtype=np.float32), np.array([(0, 2), (0, 2)]),
+                    values)
+    optimiser = torch.optim.Adam(model.policy.parameters(), lr=3e-3)
+    fit(model, optimiser, data, ImitationConfig(updates=400, batch_size=32), 0, StopRequest(), target)
+    action = tuple(int(v) for v in model.predict(x[:1], deterministic=True)[0][0])
+    assert action in ({(2, 2), (0, 0), (2, 0), (0, 2)} if target == "best" else {(1, 1)})
+
+
+def test_that_the_expected_target_keeps_gotos_action_where_no_action_is_better_on_average(tmp_path: Path) -> None:
+    import torch
+
+    from tumblebot.training.imitation import ImitationConfig, Labelled, fit
+    from tumblebot.training.ppo import StopRequest
+
+    model = _tiny_model(tmp_path)
+    x = np.random.default_rng(1).normal(size=(1, len(LAYOUTS["context"]))).astype(np.float32)
+    data = Labelled(x, np.array([(2, 2)]), np.zeros(1, dtype=np.float32), np.array([(2, 0)]),
+                    np.full((1, 9), 0.5, dtype=np.float32))  # every action scores the same
+    optimiser = torch.optim.Adam(model.policy.parameters(), lr=3e-3)
+    fit(model, optimiser, data, ImitationConfig(updates=300, batch_size=8), 0, StopRequest(), "expected")
+    assert tuple(int(v) for v in model.predict(x, deterministic=True)[0][0]) == (2, 0)
 
 
 def _final_after(env: TumblerEnv, snap: Any, goto: GotoController, obs: np.ndarray, first: tuple[int, int]) -> float:
