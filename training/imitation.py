@@ -155,10 +155,10 @@ class Labelled:
                      ("inputs", "labels", "returns", "goto_labels", "values")))
 
 
-def _joint_log_probs(policy: Any, x: torch.Tensor) -> torch.Tensor:
+def _joint_log_probs(distribution: Any) -> torch.Tensor:
     """``(B, 9)`` log-probabilities of the joint actions (right, left) in
-    :data:`tumblebot.training.lookahead.ALL_ACTIONS` order."""
-    right, left = (d.logits for d in policy.get_distribution(x).distribution)
+    :data:`tumblebot.training.lookahead.ALL_ACTIONS` order, from SB3's per-motor distribution."""
+    right, left = (d.logits for d in distribution.distribution)
     joint: torch.Tensor = (right[:, :, None] + left[:, None, :]).reshape(-1, 9)
     return joint
 
@@ -179,7 +179,7 @@ def fit(model: object, optimiser: torch.optim.Optimizer, data: Labelled, config:
     own = torch.as_tensor(data.goto_labels)
     searched = torch.as_tensor(np.isfinite(data.values[:, 0]) & (target == "expected"))
     values = torch.as_tensor(np.nan_to_num(data.values, nan=0.0))
-    advantage = ADVANTAGE_SCALE * (values - values.mean(dim=1, keepdim=True))
+    advantage = torch.where(searched[:, None], ADVANTAGE_SCALE * (values - values.mean(dim=1, keepdim=True)), 0.0)
     rng = np.random.default_rng(seed)
     policy.set_training_mode(True)
     recent: list[float] = []
@@ -187,15 +187,12 @@ def fit(model: object, optimiser: torch.optim.Optimizer, data: Labelled, config:
         if stop.signum is not None:
             raise KeyboardInterrupt
         idx = torch.as_tensor(rng.integers(0, len(x), config.batch_size))
-        chosen = torch.where(searched[idx, None], own[idx], a[idx])  # goto's own action in the search
-        state_values, log_prob, _ = policy.evaluate_actions(x[idx], chosen)
         in_search = searched[idx]
-        action_loss = -log_prob * torch.where(in_search, GOTO_WEIGHT, 1.0)
-        if bool(in_search.any()):
-            rows = idx[in_search]
-            expected = (torch.exp(_joint_log_probs(policy, x[rows])) * advantage[rows]).sum(dim=1)
-            action_loss = action_loss.clone()
-            action_loss[in_search] = action_loss[in_search] - expected
+        chosen = torch.where(in_search[:, None], own[idx], a[idx])  # goto's own action in the search
+        distribution = policy.get_distribution(x[idx])
+        expected = (torch.exp(_joint_log_probs(distribution)) * advantage[idx]).sum(dim=1)  # 0 outside it
+        action_loss = -distribution.log_prob(chosen) * torch.where(in_search, GOTO_WEIGHT, 1.0) - expected
+        state_values = policy.predict_values(x[idx])
         loss = action_loss.mean() + 0.5 * torch.nn.functional.mse_loss(state_values.flatten(), g[idx])
         optimiser.zero_grad()
         loss.backward()

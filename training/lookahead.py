@@ -106,11 +106,10 @@ def search_values(env: Any, goto: GotoController, obs: np.ndarray, step: int, dr
                   seed: int = 0) -> tuple[tuple[int, int], np.ndarray]:
     """:func:`_search`'s action, and every action's mean final R (:data:`ALL_ACTIONS` order)."""
     snap = env.snapshot()
-    best, best_action = -np.inf, ALL_ACTIONS[4]
     values = np.empty(len(ALL_ACTIONS))
     try:
         futures = max(draws, 1)
-        for action in ALL_ACTIONS:
+        for k, action in enumerate(ALL_ACTIONS):
             total = 0.0
             for draw in range(futures):
                 env.restore(snap)
@@ -122,13 +121,11 @@ def search_values(env: Any, goto: GotoController, obs: np.ndarray, step: int, dr
                 after, _, _, _, info = env.step(np.array(action))
                 total += (float(info["final_R"]) if step + 1 >= env.episode_steps
                           else _finish(env, follower, after, step + 1))
-            values[ALL_ACTIONS.index(action)] = total / futures
-            if total / futures > best:
-                best, best_action = total / futures, action
+            values[k] = total / futures
         env.restore(snap)
     finally:
         env.release(snap)
-    return best_action, values
+    return ALL_ACTIONS[int(np.argmax(values))], values  # the first of equals, as before
 
 
 def _episode(seed: int) -> EpisodeRecord:
