@@ -46,18 +46,8 @@ def _policy_path(name: str) -> Path:
     return path
 
 
-def _trial_run(args: argparse.Namespace) -> int:
-    from tumblebot.host.controller import ControllerConfig, TrialRunner
-    from tumblebot.host.link import AgentClient, load_host_key, parse_address
-    from tumblebot.host.mocap import open_source
-    from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.policy import OnnxPolicy
-
-    design = Design.parse(args.design)
-    task = "nav-flat"
-    policy: Any
-    policy_path: Path | str
+def _trial_policy(args: argparse.Namespace, design: Any, task: str) -> tuple[Any, Path | str]:
+    """The controller ``trial run`` drives with (the bundled policy, an ONNX file or goto) and what the plan records."""
     if args.gait is not None:
         if args.policy is not None:
             raise TumblebotError("give --policy or --gait, not both")
@@ -65,11 +55,26 @@ def _trial_run(args: argparse.Namespace) -> int:
             raise TumblebotError(f"--gait {args.gait!r}: the host drives trials with a policy or with goto")
         from tumblebot.sim.goto import GotoPolicy
 
-        policy, policy_path = GotoPolicy(args.steps), "goto"
-    else:
-        policy_path = _policy_path(args.policy or "nav-flat")
-        policy = OnnxPolicy(policy_path, task=task)
-        policy.bind_design(design.as_tuple())  # a design-conditioned policy is told the body it drives
+        return GotoPolicy(args.steps), "goto"
+    from tumblebot.sim.policy import OnnxPolicy
+
+    policy_path = _policy_path(args.policy or "nav-flat")
+    policy = OnnxPolicy(policy_path, task=task)
+    policy.bind_design(design.as_tuple())  # a design-conditioned policy is told the body it drives
+    return policy, policy_path
+
+
+def _trial_run(args: argparse.Namespace) -> int:
+    from tumblebot.host.controller import ControllerConfig, TrialRunner
+    from tumblebot.host.link import AgentClient, load_host_key, parse_address
+    from tumblebot.host.live import LiveView, parse_listen
+    from tumblebot.host.mocap import open_source
+    from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
+    from tumblebot.sim.design import Design
+
+    design = Design.parse(args.design)
+    task = "nav-flat"
+    policy, policy_path = _trial_policy(args, design, task)
     config = ControllerConfig(period=args.period, steps=args.steps, lost_after=args.lost_after,
                               agent_timeout=args.agent_timeout, max_speed=args.max_speed)
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
@@ -77,11 +82,18 @@ def _trial_run(args: argparse.Namespace) -> int:
     key = load_host_key(args.key)  # everything is checked before the trial set is created or touched
     address = parse_address(args.agent)
     twin = parse_address(args.twin) if args.twin else None
+    listen = parse_listen(args.foxglove) if args.foxglove is not None else None
     source = open_source(args.mocap)
+    live = None
     try:
+        if listen is not None:
+            live = LiveView(*listen)
+            say(f"live view: open {live.url} in Foxglove (layout: docs/foxglove-layout.json)")
         plan = open_trial_set(args.out, plan)
     except BaseException:
         source.close()
+        if live is not None:
+            live.close()
         raise
     agent = AgentClient(address, key)
     placer = TwinPlacer(twin) if twin else OperatorPlacer(source, out=say, status=say_status)
@@ -94,7 +106,7 @@ def _trial_run(args: argparse.Namespace) -> int:
 
     try:
         index = run_trial_set(args.out, plan, controller, placer, out=say, agent_wait=args.agent_wait,
-                              on_logged=on_logged)
+                              on_logged=on_logged, mirror=live.publish if live is not None else None)
     except KeyboardInterrupt:
         print(f"\nstopped; the robot was told to stop. Finished trials are in {args.out}/index.json; "
               "run the same command to resume.", file=sys.stderr)
@@ -102,6 +114,8 @@ def _trial_run(args: argparse.Namespace) -> int:
     finally:
         source.close()
         agent.close()
+        if live is not None:
+            live.close()
     print(f"trial set complete: {len(index['trials'])} trials in {args.out}")
     return 0
 
@@ -158,8 +172,13 @@ def _twin_run(args: argparse.Namespace) -> int:
     from tumblebot.sim.evaluate import Controller
 
     Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
+    if args.foxglove is not None:
+        from tumblebot.host.live import parse_listen
+
+        parse_listen(args.foxglove)  # a bad address is refused before the twin starts
     code = run_twin(args.out, args.points, args.per_point, args.radius, args.setpoint, args.heading,
-                    Design.parse(args.design), args.seed, args.policy, servo=servo)
+                    Design.parse(args.design), args.seed, args.policy, servo=servo,
+                    extra=["--foxglove", args.foxglove] if args.foxglove is not None else None)
     if code != 0:
         return code
     if args.check:
@@ -235,6 +254,9 @@ def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--max-speed", type=float, default=3.0, help="m/s; faster pose jumps are outliers (3)")
     r.add_argument("--seed", type=int, default=0, help="seed of the placement headings and the twin's episodes")
     r.add_argument("--twin", help="HOST:PORT of a digital twin's world, which then places the robot itself")
+    r.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="also stream the trials live to Foxglove: a WebSocket server on PORT (loopback unless HOST "
+                        "is given; 0 picks a free port), carrying what the trial logs carry")
     r.add_argument("--print-writes", action="store_true",
                    help="print '@written N' after each log message is on disk (for crash-safety tests)")
     r.set_defaults(func=_trial_run)
@@ -275,6 +297,8 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     t.add_argument("--check", action="store_true", help="then test consistency with pure simulation")
     t.add_argument("--sim-episodes", type=positive_int, default=16, help="simulated episodes per twin trial (16)")
+    t.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="stream the twin's trials live to Foxglove (as trial run --foxglove)")
     _add_servo(t)
     t.add_argument("--allow-servo-mismatch", action="store_true",
                    help="run a policy under a servo other than the one it was trained under")

@@ -83,8 +83,13 @@ def _scene_update() -> dict[str, Any]:
                       "sec": {"type": "integer"}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}},
                   frame_locked={"type": "boolean", "description": "follow frame_id as it moves"},
                   cubes=_array(cube, "boxes"), cylinders=_array(cylinder, "cylinders"), lines=_array(line, "lines"))
+    deletion = _obj("foxglove.SceneEntityDeletion", "a command to delete entities",
+                    timestamp=_time("deletes entities created before this time"),
+                    type={"title": "foxglove.SceneEntityDeletionType", "description": "what to delete",
+                          "oneOf": [{"title": "MATCHING_ID", "const": 0}, {"title": "ALL", "const": 1}]},
+                    id={"type": "string", "description": "the entity to delete (MATCHING_ID)"})
     return _obj("foxglove.SceneUpdate", "an update to the entities of a 3D scene",
-                deletions=_array({"type": "object"}, "entities to delete"), entities=_array(entity, "entities"))
+                deletions=_array(deletion, "entities to delete"), entities=_array(entity, "entities"))
 
 
 #: Topic → JSON schema of the Foxglove topics a trial log carries.

@@ -62,8 +62,13 @@ class Pose:
     seq: int | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {"t": self.t, "p": list(self.position), "q": list(self.quaternion), "source_time": self.source_time,
-                "seq": self.seq}
+        """The trial log's ``/pose`` message; ``source_time`` and ``seq`` only when the source has them."""
+        out: dict[str, Any] = {"t": self.t, "p": list(self.position), "q": list(self.quaternion)}
+        if self.source_time is not None:
+            out["source_time"] = self.source_time
+        if self.seq is not None:
+            out["seq"] = self.seq
+        return out
 
 
 def parse_pose_datagram(data: bytes, body: str | None, received: float) -> Pose:

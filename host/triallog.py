@@ -28,7 +28,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "t": {"type": "number", "description": "host monotonic time, s"},
         "p": {"type": "array", "items": {"type": "number"}, "description": "lab-frame position x, y, z (m)"},
         "q": {"type": "array", "items": {"type": "number"}, "description": "orientation quaternion x, y, z, w"},
-        "source_time": {"type": ["number", "null"]}, "seq": {"type": ["integer", "null"]}}},
+        "source_time": {"type": "number", "description": "the source's own timestamp, s (absent if it has none)"},
+        "seq": {"type": "integer", "description": "the source's frame counter (absent if it has none)"}}},
     "/decision": {"type": "object", "title": "tumblebot.Decision", "properties": {
         "step": {"type": "integer"}, "observation": {"type": "array", "items": {"type": "number"}},
         "command": {"type": "array", "items": {"type": "integer"}}, "distance": {"type": "number"},
@@ -45,13 +46,17 @@ class TrialLogWriter:
     """Appends messages to one trial's MCAP file; every ``write`` is on disk when it returns."""
 
     def __init__(self, path: Path, metadata: dict[str, str] | None = None,
-                 on_written: Callable[[int], None] | None = None) -> None:
+                 on_written: Callable[[int], None] | None = None,
+                 mirror: Callable[[str, bytes, int], None] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         from tumblebot.host import foxglove
 
         self.path = path
         self.on_written = on_written  #: called with each message's sequence number once it is on disk
+        #: called with (topic, JSON payload, log time in ns) of every message written, after it
+        #: is written: a live view (:class:`tumblebot.host.live.LiveView`'s ``publish``)
+        self.mirror = mirror
         self._file = path.open("wb")
         self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE,
                               use_statistics=True, use_summary_offsets=True)
@@ -87,8 +92,11 @@ class TrialLogWriter:
     def _add(self, topic: str, data: dict[str, Any], t: float) -> int:
         ns = int(t * 1e9)
         self._seq += 1
+        payload = json.dumps(data, separators=(",", ":")).encode()
         self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, sequence=self._seq,
-                                 data=json.dumps(data, separators=(",", ":")).encode())
+                                 data=payload)
+        if self.mirror is not None:
+            self.mirror(topic, payload, ns)
         return self._seq
 
     def _sync(self) -> None:

@@ -171,8 +171,10 @@ class TwinPlacer(Placer):
 # ----------------------------------------------------------------------------- running
 def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer: Placer,
                   out: Callable[[str], None] = _quiet, agent_wait: float = 300.0,
-                  on_logged: Callable[[int], None] | None = None) -> dict[str, Any]:
-    """Run every unfinished trial of the set. Returns the index."""
+                  on_logged: Callable[[int], None] | None = None,
+                  mirror: Callable[[str, bytes, int], None] | None = None) -> dict[str, Any]:
+    """Run every unfinished trial of the set. Returns the index. ``mirror`` sees every
+    logged message (:class:`~tumblebot.host.triallog.TrialLogWriter`), for a live view."""
     index = load_index(folder)
     done = {t["trial"] for t in index["trials"]}
     for trial in range(plan.trials):
@@ -189,7 +191,8 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
             log = TrialLogWriter(path, {"trial": str(trial), "point": str(k), "start": json.dumps(point),
                                         "setpoint": json.dumps(plan.setpoint), "design": json.dumps(plan.design),
                                         "radius": str(plan.radius),
-                                        "policy_sha256": plan.policy_sha256}, on_written=on_logged)
+                                        "policy_sha256": plan.policy_sha256}, on_written=on_logged,
+                                  mirror=mirror)
             result: TrialResult | None = None
             background = BackgroundLog(log)  # the controller never waits for the disk
             try:

@@ -51,7 +51,7 @@ def _trial_log(path: Path) -> None:
     with TrialLogWriter(path, metadata) as log:
         for i in range(5):
             log.write("/pose", {"t": i * 0.1, "p": [1.8 - 0.1 * i, 2.0, 0.07], "q": [0.0, 0.0, 0.0, 1.0],
-                                "source_time": None, "seq": i}, t=1_700_000_000.0 + 0.1 * i)
+                                "seq": i}, t=1_700_000_000.0 + 0.1 * i)
         log.write("/command", {"right": 1, "left": -1, "kind": "policy"})
 
 
@@ -108,3 +108,36 @@ def test_that_the_shipped_layout_shows_the_trial_topics() -> None:
     for topic in ("/robot/model", "/scene", "/decision"):
         assert topic in text
     assert '"followTf": "robot"' in text
+
+
+def _foxglove_reads(schema: dict[str, Any], where: str = "$") -> list[str]:
+    """What Foxglove's JSON-schema reader (it builds a message definition from the schema,
+    field by field) would refuse: a ``type`` that is not one name (``["number", "null"]``
+    made it reject ``/pose``), an object without ``properties`` or an array without
+    ``items`` (it stopped reading ``/scene`` at ``deletions``), an enum that is not
+    ``oneOf`` constants."""
+    kind = schema.get("type")
+    if kind is None:
+        options = schema.get("oneOf")
+        if not options or not all("const" in o for o in options):
+            return [f"{where}: neither a type nor an enum of constants"]
+        return []
+    if not isinstance(kind, str):
+        return [f"{where}: type {kind!r} is not one name"]
+    if kind == "object":
+        if not isinstance(schema.get("properties"), dict):
+            return [f"{where}: an object without properties"]
+        return [e for key, sub in schema["properties"].items() for e in _foxglove_reads(sub, f"{where}.{key}")]
+    if kind == "array":
+        return _foxglove_reads(schema["items"], f"{where}[]") if "items" in schema else [f"{where}: no items"]
+    return [] if kind in ("string", "number", "integer", "boolean") else [f"{where}: unknown type {kind!r}"]
+
+
+def test_that_every_topic_of_a_trial_log_has_a_schema_foxglove_can_read(tmp_path: Path) -> None:
+    path = tmp_path / "trial.mcap"
+    _trial_log(path)
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and len(summary.schemas) >= 9
+    for schema in summary.schemas.values():
+        assert not _foxglove_reads(json.loads(schema.data)), (schema.name, _foxglove_reads(json.loads(schema.data)))

@@ -116,8 +116,8 @@ def test_that_the_mock_and_replay_sources_produce_poses(tmp_path: Path) -> None:
     log = tmp_path / "trial.mcap"
     with TrialLogWriter(log) as w:
         for i in range(10):
-            w.write("/pose", {"t": i * 0.01, "p": [i * 0.01, 0, 0.05], "q": [0, 0, 0, 1], "source_time": None,
-                              "seq": i}, t=1000.0 + i * 0.01)
+            w.write("/pose", {"t": i * 0.01, "p": [i * 0.01, 0, 0.05], "q": [0, 0, 0, 1], "seq": i},
+                    t=1000.0 + i * 0.01)
     src = open_source(f"replay://{log}?speed=2")
     try:
         got: list[Pose] = []

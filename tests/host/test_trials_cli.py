@@ -90,6 +90,8 @@ def test_that_bad_trial_input_gets_one_clear_error(tmp_path: Path) -> None:
         (run_args(out, "127.0.0.1:47800", key, "--policy", "nope.onnx"), "does not exist"),
         (run_args(out, "127.0.0.1:47800", key, "--setpoint", "1"), "two numbers"),
         (run_args(out, "127.0.0.1:47800", key, "--period", "0"), "period"),
+        (run_args(out, "127.0.0.1:47800", key, "--foxglove", "web"), "expected PORT or HOST:PORT"),
+        (run_args(out, "127.0.0.1:47800", key, "--foxglove", "70000"), "expected PORT or HOST:PORT"),
     ]
     for args, message in cases:
         run = tb(*args, timeout=60)
@@ -100,3 +102,9 @@ def test_that_bad_trial_input_gets_one_clear_error(tmp_path: Path) -> None:
     assert missing.returncode == 2 and "not a trial set" in missing.stderr
     partial = tb("trial", "analyze", str(tmp_path), "--baseline-mean", "0.4")
     assert partial.returncode == 2 and "--baseline-sd" in partial.stderr
+
+
+def test_that_twin_run_refuses_a_bad_live_view_address_before_starting(tmp_path: Path) -> None:
+    run = tb("twin", "run", "--out", str(tmp_path / "t"), "--foxglove", "localhost:", timeout=60)
+    assert run.returncode == 2 and "expected PORT or HOST:PORT" in run.stderr, run.stderr
+    assert not (tmp_path / "t").exists()
