@@ -62,7 +62,6 @@ class LiveView:
         from tumblebot.host import foxglove as schemas
         from tumblebot.host.triallog import SCHEMAS
 
-        self._foxglove = foxglove
         self._context = foxglove.Context()  # our own channels, not the SDK's global ones
         self._lock = threading.Lock()
         self._latched: dict[str, tuple[bytes, int]] = {}
