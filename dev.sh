@@ -86,8 +86,11 @@ case "$cmd" in
             echo "dev.sh: pytest (fast: not slow, not hil)"
             exec "$VENV/bin/python" -m pytest -m "not slow and not hil" "$@"
         fi
-        apt_install $FIRMWARE_PACKAGES postgresql
+        apt_install $FIRMWARE_PACKAGES postgresql chromium
+        command -v npm >/dev/null 2>&1 || apt_install nodejs npm
         ensure_venv "train,opt,host,dev,agent"
+        echo "dev.sh: Foxglove Studio for the viewer test (npm ci in docs/screenshot)"
+        (cd docs/screenshot && npm ci --no-audit --no-fund --silent)
         echo "dev.sh: firmware build (Debian avr-gcc)"
         make -s -C firmware/arduino
         echo "dev.sh: firmware host tests (CMake/ctest, ASan+UBSan)"

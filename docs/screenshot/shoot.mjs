@@ -4,7 +4,7 @@
 // Foxglove Studio is the @foxglove/studio-base bundle from npm (its App component, with
 // an in-memory layout store holding our layout); this script serves it, the page in page/,
 // and the log (with HTTP Range requests, which Foxglove's remote-file reader needs) on
-// loopback. Everything the page prints as an error is printed here.
+// loopback. Exits 1, naming them, if Foxglove reports problems reading the log or the page fails.
 import { createReadStream, readFileSync, statSync } from "node:fs";
 import { createServer } from "node:http";
 import { dirname, extname, join, resolve } from "node:path";
@@ -56,12 +56,16 @@ if (at) query.set("time", at);
 const browser = await chromium.launch({ executablePath: "/usr/bin/chromium", args: [
   "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-quic",
   "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync"] });
+const problems = [];
 try {
   const page = await browser.newPage({ viewport: { width: 1600, height: 900 } });
-  page.on("pageerror", (e) => console.error(`page error: ${e}`));
-  page.on("console", (m) => { if (m.type() === "error") console.error(`page: ${m.text().slice(0, 300)}`); });
-  await page.goto(`${base}/index.html?${query}`);
-  await page.getByText("/robot/model").first().waitFor({ timeout: 60_000 });  // the log is open
+  page.on("pageerror", (e) => problems.push(`page error: ${e}`));
+  page.on("console", (m) => {
+    // Foxglove reports a log it cannot read (a schema it refuses, a message it cannot decode) as a player problem
+    if (m.type() === "error" && m.text().includes("Player problem")) problems.push(m.text().slice(0, 400));
+  });
+  await page.goto(`${base}/index.html?${query}`, { timeout: 300_000 });
+  await page.getByText("/robot/model").first().waitFor({ timeout: 300_000 });  // the log is open (generous: CI is busy)
   await page.waitForTimeout(8_000);  // the 3D panel and plots draw
   const hint = page.getByText("Open settings to configure").locator("..").getByRole("button");
   if (await hint.count()) await hint.first().click();  // the 3D panel's first-use hint
@@ -72,3 +76,5 @@ try {
   await browser.close();
   server.close();
 }
+for (const p of problems) console.error(`shoot.mjs: Foxglove: ${p}`);
+process.exit(problems.length ? 1 : 0);
