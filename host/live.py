@@ -59,14 +59,13 @@ class LiveView:
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = 8765, name: str = "tumblebot") -> None:
         foxglove = _import_sdk()
-        from tumblebot.host import foxglove as schemas
-        from tumblebot.host.triallog import SCHEMAS
+        from tumblebot.host.triallog import topic_schemas
 
         self._context = foxglove.Context()  # our own channels, not the SDK's global ones
         self._lock = threading.Lock()
         self._latched: dict[str, tuple[bytes, int]] = {}
         self._channels: dict[str, Any] = {}
-        for topic, schema in {**SCHEMAS, **schemas.SCHEMAS}.items():
+        for topic, schema in topic_schemas().items():
             self._channels[topic] = foxglove.Channel(
                 topic, message_encoding="json", context=self._context,
                 schema=foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode()))

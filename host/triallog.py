@@ -42,6 +42,13 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 }
 
 
+def topic_schemas() -> dict[str, dict[str, Any]]:
+    """Every topic a trial log carries → its JSON schema: ours and Foxglove's well-known types."""
+    from tumblebot.host import foxglove
+
+    return {**SCHEMAS, **foxglove.SCHEMAS}
+
+
 class TrialLogWriter:
     """Appends messages to one trial's MCAP file; every ``write`` is on disk when it returns."""
 
@@ -49,8 +56,6 @@ class TrialLogWriter:
                  on_written: Callable[[int], None] | None = None,
                  mirror: Callable[[str, bytes, int], None] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
-
-        from tumblebot.host import foxglove
 
         self.path = path
         self.on_written = on_written  #: called with each message's sequence number once it is on disk
@@ -64,7 +69,7 @@ class TrialLogWriter:
         self._channels: dict[str, int] = {}
         self._seq = 0
         self._finished = False
-        for topic, schema in {**SCHEMAS, **foxglove.SCHEMAS}.items():
+        for topic, schema in topic_schemas().items():
             sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(topic, "json", sid)
         if metadata:

@@ -5,7 +5,7 @@
 // an in-memory layout store holding our layout); this script serves it, the page in page/,
 // and the log (with HTTP Range requests, which Foxglove's remote-file reader needs) on
 // loopback. Exits 1, naming them, if Foxglove reports problems reading the log or the page fails.
-import { createReadStream, readFileSync, statSync } from "node:fs";
+import { createReadStream, statSync } from "node:fs";
 import { createServer } from "node:http";
 import { dirname, extname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";

@@ -71,8 +71,8 @@ def test_that_a_late_viewer_sees_the_robot_the_scene_and_every_pose_as_logged(tm
         log.write("/command", {"right": 2, "left": 0, "kind": "policy"}, t=1_700_000_001.0)
         streamed = _received(ws, channels, 3 * POSES + 1)  # each pose also as /tf and /robot/pose
     logged, schema_names = _logged(path)
-    assert sorted(latched) == sorted(m for m in logged if m[0] in ("/robot/model", "/scene"))
-    assert streamed == [m for m in logged if m[0] not in ("/robot/model", "/scene")]  # same bytes, times, order
+    assert sorted(latched) == sorted(m for m in logged if m[0] in LATCHED)
+    assert streamed == [m for m in logged if m[0] not in LATCHED]  # same bytes, times, order
     assert {c["topic"]: c["schemaName"] for c in channels.values() if c["topic"] in schema_names} == schema_names
     assert schema_names["/tf"] == "foxglove.FrameTransform" and schema_names["/robot/model"] == "foxglove.SceneUpdate"
 
