@@ -5,7 +5,7 @@ Every inference outside training (evaluation, optimisation, the host) goes throu
 ``POLICY.onnx``) says which task and observation layout the network expects, and holds
 the SHA-256 of the ONNX file; loading checks all three.
 
-Four observation layouts exist (:data:`LAYOUTS`):
+Five observation layouts exist (:data:`LAYOUTS`):
 
 * ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
 * ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
@@ -22,6 +22,10 @@ Four observation layouts exist (:data:`LAYOUTS`):
   with the settings in :data:`RESIDUAL_GOTO`, told every step the action actually taken).
   A policy with this input starts from the hand-written controller's choice and learns
   where to deviate from it (residual policy learning).
+* ``dual``: ``residual``, then the action of a second ``goto`` with the settings in
+  :data:`DUAL_GOTO` (:data:`DUAL_FIELDS`), which suit some bodies better and others worse;
+  a policy with this input, which also knows the design, can follow whichever suits the
+  body it drives (:mod:`tumblebot.training.choice`).
 
 Callers always hand :meth:`OnnxPolicy.act` the thesis observation; the policy builds the
 rest itself (:class:`ObservationContext`), given the design at :meth:`OnnxPolicy.reset`,
@@ -48,13 +52,19 @@ CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l
                                    *(f"prev_{name}" for name in OBS_LAYOUT))
 MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
 RESIDUAL_FIELDS: tuple[str, ...] = ("goto_right", "goto_left")
+DUAL_FIELDS: tuple[str, ...] = ("goto2_right", "goto2_left")
 LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
                                        "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS,
-                                       "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS}
+                                       "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS,
+                                       "dual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS
+                                       + DUAL_FIELDS}
 #: The settings of the ``goto`` whose action a ``residual`` policy is given, pinned here
 #: (not goto's defaults) so that a trained policy's input never changes under it.
 RESIDUAL_GOTO: dict[str, Any] = {"turn_tolerance": 0.4, "stop_fraction": 0.5, "margin": 0.02, "memory": 0.5,
                                    "spin_steps_left": 2}
+#: The second ``goto`` a ``dual`` policy is shown: the settings that gain on the thesis's
+#: robots and on medium legs and lose on short legs (``reports/policy-headroom``), pinned.
+DUAL_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
 EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 
@@ -114,14 +124,17 @@ class ObservationContext:
         self._previous: np.ndarray | None = None
         self._motion: Any = None
         self._goto: Any = None
+        self._goto2: Any = None
         if layout == "memory":
             from tumblebot.sim.goto import MotionMemory  # goto imports this module
 
             self._motion = MotionMemory()
-        elif layout == "residual":
+        elif layout in ("residual", "dual"):
             from tumblebot.sim.goto import GotoConfig, GotoController
 
             self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **RESIDUAL_GOTO))
+            if layout == "dual":
+                self._goto2 = GotoController(GotoConfig(episode_steps=episode_steps, **DUAL_GOTO))
         self.step = 0
 
     @property
@@ -140,8 +153,9 @@ class ObservationContext:
         self._previous = None
         if self._motion is not None:
             self._motion.reset()
-        if self._goto is not None:
-            self._goto.reset()
+        for goto in (self._goto, self._goto2):
+            if goto is not None:
+                goto.reset()
         self.step = 0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -180,11 +194,15 @@ class ObservationContext:
         return np.asarray(self._motion.as_array(), dtype=np.float32)
 
     def _propose(self, obs: np.ndarray, step: int) -> list[np.ndarray]:
-        """goto's motion estimates and its action now, told what was actually done last step."""
-        if step > 0:
-            self._goto.taken(self._taken(obs))
-        action = self._goto.act(obs.astype(float), min(step, self.episode_steps - 1))
-        return [np.asarray(self._goto.motion.as_array(), dtype=np.float32), np.asarray(action, dtype=np.float32)]
+        """goto's motion estimates and its action now (``dual``: then the second goto's
+        action), each told what was actually done last step."""
+        actions = []
+        for goto in (g for g in (self._goto, self._goto2) if g is not None):
+            if step > 0:
+                goto.taken(self._taken(obs))
+            actions.append(np.asarray(goto.act(obs.astype(float), min(step, self.episode_steps - 1)),
+                                      dtype=np.float32))
+        return [np.asarray(self._goto.motion.as_array(), dtype=np.float32), *actions]
 
 
 class OnnxPolicy:

@@ -43,7 +43,8 @@ class TrainConfig:
         observation: the policy's input layout, ``"thesis"`` (the thesis's 9 numbers) or
             ``"context"`` (those plus the design, the steps left and the previous
             observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
-            ``"residual"`` (``memory`` plus goto's proposed action;
+            ``"residual"`` (``memory`` plus goto's proposed action) or ``"dual"``
+            (``residual`` plus a second goto's, :data:`tumblebot.sim.policy.DUAL_GOTO`;
             :data:`tumblebot.sim.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used

@@ -41,6 +41,10 @@ OBSERVATION_NOTES = {
                  "goto with the settings pinned in tumblebot.sim.policy.RESIDUAL_GOTO, told the action actually "
                  "taken every step): the policy learns where to deviate from the hand-written controller; "
                  "OnnxPolicy builds it from the thesis observation and the design given at reset"),
+    "dual": ("the residual observation, then the action a second goto would take now (the settings pinned in "
+             "tumblebot.sim.policy.DUAL_GOTO, also told the action actually taken every step): which of the two "
+             "suits the body is learnt from the design; OnnxPolicy builds it from the thesis observation and the "
+             "design given at reset"),
 }
 
 

@@ -16,7 +16,8 @@ features of the current and of the previous observation, then the design scaled 
 scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those, then
 goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
 ``MEMORY_FEATURE_NAMES``). A ``residual`` policy gets those, then goto's proposed action,
-each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
+each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``); a ``dual`` policy then the second
+goto's action the same way (``DUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
 training environments with the same :class:`ObservationContext` the deployed policy uses.
 """
 
@@ -48,6 +49,8 @@ MEMORY_FEATURE_NAMES: tuple[str, ...] = (*CONTEXT_FEATURE_NAMES, "memory_step_le
                                          "memory_spin_negative")
 RESIDUAL_FEATURE_NAMES: tuple[str, ...] = (*MEMORY_FEATURE_NAMES, *(f"goto_{leg}_{command}" for leg in ("right", "left")
                                                                     for command in ("reverse", "stop", "forward")))
+DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_{command}" for leg in ("right", "left")
+                                                                  for command in ("reverse", "stop", "forward")))
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 _THESIS = len(OBS_LAYOUT)
@@ -108,23 +111,34 @@ class MemoryFeatures(nn.Module):
 
 
 class ResidualFeatures(nn.Module):
-    """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``)."""
+    """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``);
+    ``dual`` input ``(B, 30)`` → features ``(B, 64)`` (``DUAL_FEATURE_NAMES``, with ``proposals=2``):
+    the memory features, then each proposed action's legs one-hot."""
 
-    def __init__(self) -> None:
+    def __init__(self, proposals: int = 1) -> None:
         super().__init__()
         self.memory = MemoryFeatures()
         self._memory_size = len(LAYOUTS["memory"])
+        self._proposals = proposals
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        proposal = obs[:, self._memory_size:self._memory_size + 2]
-        one_hot = [(torch.abs(proposal[:, leg:leg + 1] - command) < 0.5).to(obs.dtype)
-                   for leg in range(2) for command in range(3)]
+        proposals = obs[:, self._memory_size:self._memory_size + 2 * self._proposals]
+        one_hot = [(torch.abs(proposals[:, leg:leg + 1] - command) < 0.5).to(obs.dtype)
+                   for leg in range(2 * self._proposals) for command in range(3)]
         return torch.cat([self.memory(obs[:, :self._memory_size]), *one_hot], dim=-1)
+
+
+class DualFeatures(ResidualFeatures):
+    """``dual`` input ``(B, 30)`` → features ``(B, 64)`` (``DUAL_FEATURE_NAMES``)."""
+
+    def __init__(self) -> None:
+        super().__init__(proposals=2)
 
 
 _FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
     "thesis": (ObservationFeatures, FEATURE_NAMES), "context": (ContextFeatures, CONTEXT_FEATURE_NAMES),
     "memory": (MemoryFeatures, MEMORY_FEATURE_NAMES), "residual": (ResidualFeatures, RESIDUAL_FEATURE_NAMES),
+    "dual": (DualFeatures, DUAL_FEATURE_NAMES),
 }
 
 

@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.goto import GotoConfig, GotoController
-from tumblebot.sim.policy import EPISODE_STEPS
+from tumblebot.sim.policy import EPISODE_STEPS, OBS_LAYOUT
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -76,13 +76,37 @@ class Batch:
     shaped_return: list[float]  #: each episode's undiscounted sum of shaped rewards
 
 
+Teacher = Callable[[np.ndarray], GotoConfig]  #: a design (x, y, z, l) → the goto settings that label its episode
+
+
+def goto_teacher(episode_steps: int = EPISODE_STEPS) -> Teacher:
+    """goto with its defaults on every body."""
+    return lambda design: GotoConfig(episode_steps=episode_steps)
+
+
+def choice_teacher(choice: Any, episode_steps: int = EPISODE_STEPS) -> Teacher:
+    """goto with the settings a :class:`~tumblebot.training.choice.GotoChoice` predicts
+    better for the body (``DUAL_GOTO`` or ``RESIDUAL_GOTO``)."""
+    from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+
+    def settings(design: np.ndarray) -> GotoConfig:
+        chosen = DUAL_GOTO if choice.prefers_dual(design) else RESIDUAL_GOTO
+        return GotoConfig(episode_steps=episode_steps, **chosen)
+
+    return settings
+
+
 def collect(model: object, venv: object, episodes: int, student_drives: bool, gamma: float,
-            episode_steps: int, stop: StopRequest, bar: tqdm[Any]) -> Batch:
+            episode_steps: int, stop: StopRequest, bar: tqdm[Any], teacher: Teacher | None = None) -> Batch:
     """Run ``episodes`` episodes in ``venv``, driven by the teacher or by ``model``'s
-    deterministic policy, labelling every state with the teacher's action."""
+    deterministic policy, labelling every state with the teacher's action. The teacher
+    of an episode is goto with the settings ``teacher`` gives for its design (read from
+    the observation's design fields; default: goto's defaults everywhere)."""
     n = venv.num_envs  # type: ignore[attr-defined]
-    teachers = [GotoController(GotoConfig(episode_steps=episode_steps)) for _ in range(n)]
+    teacher = teacher or goto_teacher(episode_steps)
+    design = slice(len(OBS_LAYOUT), len(OBS_LAYOUT) + 4)  # the context layouts' design_x … design_l
     obs = venv.reset()  # type: ignore[attr-defined]
+    teachers = [GotoController(teacher(obs[i, design])) for i in range(n)]
     step = np.zeros(n, dtype=int)
     trace: list[list[tuple[np.ndarray, tuple[int, int], float]]] = [[] for _ in range(n)]
     inputs: list[np.ndarray] = []
@@ -117,7 +141,7 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
                 final.append(float(infos[i]["final_R"]))
                 shaped.append(sum(r for _, _, r in trace[i]))
                 trace[i], step[i] = [], 0
-                teachers[i].reset()
+                teachers[i] = GotoController(teacher(new_obs[i, design]))  # the next episode's body
                 bar.update(1)
         obs = new_obs
     return Batch(np.asarray(inputs, dtype=np.float32), np.asarray(labels, dtype=np.int64),
@@ -257,7 +281,7 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     """Check the run can start, then write its config (rewritten with the steps taken at
     the end) and ``imitation.json``: the DAgger settings and the teacher."""
     if config.observation == "thesis":
-        raise TrainingError("imitation needs the context, memory or residual observation (goto uses memory "
+        raise TrainingError("imitation needs the context, memory, residual or dual observation (goto uses memory "
                             "the thesis's 9 numbers lack)")
     from tumblebot.sim.goto import check_navigation_task
 
@@ -298,10 +322,25 @@ def _finish_run(config: TrainConfig, run_dir: Path, steps: int) -> Path:
 
 
 def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
-            on_iteration: Callable[[IterationSummary], None] | None = None) -> Path:
+            on_iteration: Callable[[IterationSummary], None] | None = None, choice: Path | None = None) -> Path:
     """DAgger of ``goto`` into a new run in ``run_dir``; returns its checkpoint.
-    ``on_iteration`` sees each iteration's summary (the CLI prints it)."""
-    _new_run(config, imitation, run_dir)
+    ``on_iteration`` sees each iteration's summary (the CLI prints it). A ``dual`` student
+    needs ``choice``, a :class:`~tumblebot.training.choice.GotoChoice` file: its teacher is
+    goto with the settings that file predicts better for each body (copied into the run)."""
+    teacher, record = goto_teacher(), None
+    if (config.observation == "dual") != (choice is not None):
+        raise TrainingError("a dual student needs --choice (which goto settings suit which body), and only "
+                            "a dual student takes it")
+    if choice is not None:
+        from tumblebot.sim.policy import sha256_of
+        from tumblebot.training.choice import GotoChoice
+
+        model_of_choice = GotoChoice.load(choice)  # checked before the run folder is written
+        teacher = choice_teacher(model_of_choice)
+        record = {"kind": "goto-choice", "choice": "choice.json", "choice_sha256": sha256_of(choice)}
+    _new_run(config, imitation, run_dir, record)
+    if choice is not None:
+        (run_dir / "choice.json").write_bytes(choice.read_bytes())
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
     env = build_vec_env(config, seed=config.seed)
@@ -317,7 +356,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
                 with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
                           desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
                     batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS,
-                                    stop, bar)
+                                    stop, bar, teacher)
                 data.append(Labelled.of_goto(batch.inputs, batch.labels, batch.returns))
                 steps += len(batch.labels)
                 dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,

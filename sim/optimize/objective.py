@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tumblebot import interrupts
 from tumblebot.sim.errors import SimError, UnknownTaskError
 from tumblebot.sim.objective import VARIANTS, Variant, wrap_reward
 from tumblebot.sim.tasks import get_task
@@ -54,6 +55,8 @@ class StopFlag:
             return
         previous = {sig: signal.signal(sig, lambda _sig, _frame: self.set())
                     for sig in (signal.SIGINT, signal.SIGTERM)}
+        if interrupts.take():  # Ctrl-C while the command was starting (tumblebot.interrupts)
+            self.set()
         try:
             yield self
         finally:

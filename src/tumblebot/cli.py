@@ -9,6 +9,7 @@ so ``tumblebot --help`` and ``tumblebot power`` stay fast.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -17,6 +18,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeAlias
 
+from tumblebot import interrupts
 from tumblebot.defaults import MAX_STALL_TORQUE, OBSERVATION_LAYOUTS, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 
@@ -198,7 +200,7 @@ def _imitate(args: argparse.Namespace) -> int:
           f"{config.envs} environments, in {args.run_dir}")
     try:
         final = imitate(config, settings, args.run_dir,
-                        on_iteration=lambda summary: print(summary.describe(), flush=True))
+                        on_iteration=lambda summary: print(summary.describe(), flush=True), choice=args.choice)
     except TrainingInterrupted as stopped:
         print(f"\nstopped at {stopped.steps} steps; {args.run_dir} holds the last finished iteration "
               "(imitation does not resume: start a new run folder)", file=sys.stderr)
@@ -457,6 +459,9 @@ def _optimize(args: argparse.Namespace) -> int:
     objective, recipe, servo, controllers, config, name, storage_url = _optimize_plan(args)
     stop = StopFlag()
     with stop.installed():  # from here on Ctrl-C only asks; the work stops at its next safe point
+        if stop():  # Ctrl-C while the command was starting up: stop before the study is opened
+            print("stopped before the study was opened", file=sys.stderr)
+            return 130
         study = open_study(open_storage(storage_url, writable=True), name, config)
         stored = load_config(study)
         if args.startup is None and stored is not None and stored.startup != recipe.startup:
@@ -668,16 +673,17 @@ def _add_train_command(sub: Subcommands) -> None:
     p.add_argument("--observation", choices=OBSERVATION_LAYOUTS, default=None,
                    help="policy input: the thesis's 9 numbers; context: those plus the design, the steps left "
                         "and the previous observation; memory: context plus goto's motion estimates; residual: "
-                        "memory plus the action goto would take (default thesis)")
+                        "memory plus the action goto would take; dual: residual plus the action of goto with "
+                        "its second pinned settings (default thesis)")
     p.set_defaults(func=_train)
 
 
 def _add_imitate_command(sub: Subcommands) -> None:
     """The ``imitate`` command."""
     p = sub.add_parser("imitate", help="behaviour-clone the goto controller (DAgger): a warm start for train",
-                       description="Train a context-, memory- or residual-observation policy to do what the goto "
-                                   "controller would, with DAgger: goto drives the first iteration, the student "
-                                   "the rest, and goto labels every state. The run folder is a training run: "
+                       description="Train a context-, memory-, residual- or dual-observation policy to do what "
+                                   "the goto controller would, with DAgger: goto drives the first iteration, the "
+                                   "student the rest, and goto labels every state. The run folder is a training run: "
                                    "export it, or fine-tune it with tumblebot train --init-from RUN/latest.zip.")
     p.add_argument("--task", default="nav-flat", help="nav-flat or nav-terrain")
     p.add_argument("--run-dir", type=Path, required=True, help="new run folder")
@@ -689,8 +695,12 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="hidden layer sizes (default 256,256)")
     p.add_argument("--observation", choices=OBSERVATION_LAYOUTS[1:], default="context",
                    help="student input: context (the thesis's 9 numbers, the design, the steps left, the previous "
-                        "observation), memory (context plus goto's motion estimates) or residual (memory plus the "
-                        "action goto would take; default context)")
+                        "observation), memory (context plus goto's motion estimates), residual (memory plus the "
+                        "action goto would take) or dual (residual plus the action of goto with its second "
+                        "pinned settings; needs --choice; default context)")
+    p.add_argument("--choice", type=Path, default=None, metavar="CHOICE.json",
+                   help="with --observation dual: which goto settings suit which body (python -m "
+                        "tumblebot.training.choice fit); the teacher follows the better one on each body")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     _add_servo_arguments(p)
@@ -808,7 +818,9 @@ def _add_optimize_command(sub: Subcommands) -> None:
     _add_servo_arguments(p)
     _add_mismatch_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_optimize)
+    # Ctrl-C stays latched until optimize's StopFlag takes it over: nothing in its start-up
+    # (imports, policy checks) can lose it.
+    p.set_defaults(func=_optimize, holds_interrupts=True)
 
 
 def _add_report_command(sub: Subcommands) -> None:
@@ -881,14 +893,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    interrupts.hold()  # Ctrl-C while starting up is recorded, not raised mid-import (tumblebot.interrupts)
+    try:
+        return _dispatch(argv)
+    finally:
+        with contextlib.suppress(KeyboardInterrupt):  # too late to matter: the command has ended
+            interrupts.release()  # Python's handler back (an in-process caller keeps Ctrl-C)
+
+
+def _dispatch(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
+        if not getattr(args, "holds_interrupts", False):
+            interrupts.release()  # raises here, at a known point, if Ctrl-C came meanwhile
     except KeyboardInterrupt:
         print("tumblebot: interrupted", file=sys.stderr)
         return 130
     try:
-        return int(args.func(args))
+        code = int(args.func(args))
+        interrupts.release()  # a Ctrl-C that a holding command's own stop flag never saw
+        return code
     except TumblebotError as exc:
         print(f"tumblebot: error: {exc}", file=sys.stderr)
         return 2

@@ -308,7 +308,9 @@ def test_that_ctrl_c_at_any_moment_never_strands_a_trial_nor_hangs(tmp_path: Pat
     cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat=1", "--xi", "3", "--trials", "400",
            "--batch", "4", "--startup", "1", "--workers", workers, "--storage", f"sqlite:///{db}", "--study", "m",
            "--quiet"]
-    for delay in (0.2, 1.0, 2.0, 3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 7.5):  # imports, study creation, ask(), episodes, tell
+    # interpreter start-up and imports (where a swallowed Ctrl-C once let a run carry on), study
+    # creation, ask(), episodes, tell
+    for delay in (0.05, 0.2, 0.4, 0.7, 1.0, 1.5, 2.0, 3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 7.5):
         existed = db.exists()
         run = _interrupt_at(cmd, delay)
         if run.returncode == -signal.SIGINT:

@@ -1,0 +1,227 @@
+"""Which of two ``goto`` settings suits a body: a sweep over the design space, and a
+smooth model of its result, the teacher of the ``dual`` navigation policy.
+
+``goto``'s best settings depend on the body it drives
+(``reports/policy-headroom/README.md``): ``turn_tolerance`` 0.3 with ``spin_steps_left``
+4 gains up to +0.04 mean final R on the thesis's robots and on bodies with medium legs,
+and costs up to 0.03 on bodies with short legs. A ``dual`` policy
+(:data:`tumblebot.sim.policy.LAYOUTS`) is shown the action of ``goto`` under both settings
+(:data:`~tumblebot.sim.policy.RESIDUAL_GOTO` and :data:`~tumblebot.sim.policy.DUAL_GOTO`)
+and the design; its teacher follows the second setting on the bodies where this module
+predicts it does better.
+
+1. :func:`sweep` drives ``nav-flat`` episodes on designs drawn uniformly over those that
+   can tumble, under both settings, paired on the same episodes (the same randomisation
+   as ``tumblebot evaluate``), and records each design's mean paired difference. Designs
+   are appended to a JSON-lines file as they finish, so a stopped sweep resumes.
+2. :class:`GotoChoice` smooths those differences over the design space (Nadaraya–Watson
+   with a Gaussian kernel over the design scaled to the unit cube, its width chosen by
+   leave-one-out error) and predicts, for any design, whether the second setting is ahead.
+
+    python -m tumblebot.training.choice sweep --designs 240 --episodes 48 --seed 3 \\
+        --out training/checkpoints/goto-choice/sweep.jsonl
+    python -m tumblebot.training.choice fit training/checkpoints/goto-choice/sweep.jsonl \\
+        -o training/checkpoints/goto-choice/choice.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.training.config import TrainingError
+
+FORMAT = "tumblebot-goto-choice/1"
+_LOW = np.array([BOUNDS[n][0] for n in PARAMETERS])
+_SPAN = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
+_BANDWIDTHS = (0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4)  #: kernel widths tried, unit-cube lengths
+_ENV: dict[str, Any] = {}
+
+
+def sweep_designs(count: int, seed: int) -> list[Design]:
+    """``count`` designs drawn uniformly over the bounds, keeping those that can tumble."""
+    rng = np.random.default_rng(seed)
+    out: list[Design] = []
+    while len(out) < count:
+        design = Design.sample(rng)
+        if design.can_tumble:
+            out.append(design)
+    return out
+
+
+def _episode(job: tuple[tuple[float, ...], int, int, int]) -> tuple[float, float]:
+    """Final R of one nav-flat episode under goto's ``RESIDUAL_GOTO`` and ``DUAL_GOTO`` settings."""
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.goto import GotoConfig, GotoController
+    from tumblebot.sim.randomization import Randomization
+
+    design, seed, index, episode = job
+    if "env" not in _ENV:  # one environment per worker
+        _ENV["env"] = TumblerEnv(task="nav-flat", randomization=Randomization(design=False))
+    env = _ENV["env"]
+    reset_seed = int(np.random.SeedSequence([seed, index, episode]).generate_state(1, dtype=np.uint32)[0])
+    out = []
+    for settings in (RESIDUAL_GOTO, DUAL_GOTO):
+        obs, _ = env.reset(seed=reset_seed, options={"design": Design.from_sequence(design)})
+        goto, info = GotoController(GotoConfig(**settings)), {}
+        for step in range(env.episode_steps):
+            obs, _, _, _, info = env.step(np.array(goto.act(obs, step)))
+        out.append(float(info["final_R"]))
+    return out[0], out[1]
+
+
+def _worker_init() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the sweep between designs
+
+
+def sweep(designs: Sequence[Design], episodes: int, seed: int, workers: int, done: int = 0,
+          should_stop: Callable[[], bool] = lambda: False) -> Iterator[dict[str, Any]]:
+    """Each design's record from ``done`` on: its two mean final Rs and the paired
+    difference (second setting minus first) with its standard error."""
+    with multiprocessing.get_context("forkserver").Pool(workers, initializer=_worker_init) as pool:
+        for index in range(done, len(designs)):
+            if should_stop():
+                return
+            design = designs[index].as_tuple()
+            jobs = [(design, seed, index, e) for e in range(episodes)]
+            R = np.array(pool.map(_episode, jobs, chunksize=4))
+            diff = R[:, 1] - R[:, 0]
+            yield {"index": index, "design": list(design), "episodes": episodes, "seed": seed,
+                   "goto": float(R[:, 0].mean()), "dual": float(R[:, 1].mean()),
+                   "difference": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(episodes))}
+
+
+def read_sweep(path: Path) -> list[dict[str, Any]]:
+    """The records of a sweep file (JSON lines); :class:`TrainingError` on a bad line."""
+    records = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            Design.from_sequence(record["design"])
+            float(record["difference"])
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise TrainingError(f"{path}:{number}: not a sweep record ({exc})") from None
+        records.append(record)
+    return records
+
+
+def _unit(designs: np.ndarray) -> np.ndarray:
+    unit: np.ndarray = (np.asarray(designs, dtype=float).reshape(-1, 4) - _LOW) / _SPAN
+    return unit
+
+
+@dataclass(frozen=True)
+class GotoChoice:
+    """A smooth estimate, over the design space, of how much ``goto`` gains from the
+    ``DUAL_GOTO`` settings over ``RESIDUAL_GOTO``; :meth:`prefers_dual` is the teacher's choice."""
+
+    designs: np.ndarray  #: (N, 4) swept designs, m
+    differences: np.ndarray  #: (N,) mean paired difference of each
+    bandwidth: float  #: Gaussian kernel width over the unit cube
+
+    @classmethod
+    def fit(cls, records: Sequence[dict[str, Any]]) -> GotoChoice:
+        """The kernel width with the least leave-one-out squared error."""
+        if len(records) < 5:
+            raise TrainingError(f"a goto choice needs at least 5 swept designs, not {len(records)}")
+        designs = np.array([r["design"] for r in records], dtype=float)
+        differences = np.array([r["difference"] for r in records], dtype=float)
+        scores = {h: float(np.mean((cls(designs, differences, h)._loo() - differences) ** 2)) for h in _BANDWIDTHS}
+        return cls(designs, differences, min(scores, key=lambda h: scores[h]))
+
+    def _weights(self, at: np.ndarray) -> np.ndarray:
+        d2 = ((_unit(at)[:, None, :] - _unit(self.designs)[None, :, :]) ** 2).sum(axis=-1)
+        w: np.ndarray = np.exp(-0.5 * d2 / self.bandwidth**2)
+        return w
+
+    def _loo(self) -> np.ndarray:
+        w = self._weights(self.designs)
+        np.fill_diagonal(w, 0.0)
+        out: np.ndarray = (w @ self.differences) / np.maximum(w.sum(axis=1), 1e-12)
+        return out
+
+    def gain(self, design: Sequence[float]) -> float:
+        """The predicted mean final-R gain of the ``DUAL_GOTO`` settings on ``design``."""
+        w = self._weights(np.asarray(design, dtype=float))[0]
+        return float(w @ self.differences / max(float(w.sum()), 1e-12))
+
+    def prefers_dual(self, design: Sequence[float]) -> bool:
+        return self.gain(design) > 0.0
+
+    def to_json(self) -> str:
+        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO,
+                           "bandwidth": self.bandwidth, "designs": self.designs.tolist(),
+                           "differences": self.differences.tolist()}, indent=1) + "\n"
+
+    @classmethod
+    def load(cls, path: Path) -> GotoChoice:
+        try:
+            data = json.loads(Path(path).read_text())
+            if data.get("format") != FORMAT or data.get("first") != RESIDUAL_GOTO or data.get("second") != DUAL_GOTO:
+                raise ValueError(f"not a {FORMAT} file for the pinned goto settings")
+            choice = cls(np.array(data["designs"], dtype=float).reshape(-1, 4),
+                         np.array(data["differences"], dtype=float), float(data["bandwidth"]))
+        except (OSError, json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise TrainingError(f"goto choice {path}: {exc}") from None
+        if len(choice.designs) != len(choice.differences) or not choice.bandwidth > 0:
+            raise TrainingError(f"goto choice {path}: inconsistent designs, differences or bandwidth")
+        return choice
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tumblebot.training.choice", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("sweep", help="goto under both settings on designs drawn over the space (resumable)")
+    p.add_argument("--designs", type=int, default=240)
+    p.add_argument("--episodes", type=int, default=48)
+    p.add_argument("--seed", type=int, default=3, help="designs and episodes (keep it apart from evaluation seeds)")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
+    p = sub.add_parser("fit", help="smooth a sweep into the teacher's choice")
+    p.add_argument("sweep", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "fit":
+            choice = GotoChoice.fit(read_sweep(args.sweep))
+            args.output.write_text(choice.to_json())
+            share = np.mean([choice.prefers_dual(d) for d in choice.designs])
+            print(f"kernel width {choice.bandwidth}: the second setting is predicted ahead on {share:.0%} "
+                  f"of the {len(choice.designs)} swept designs")
+            return 0
+        if args.designs < 1 or args.episodes < 2 or args.workers < 1:
+            raise TrainingError("need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1")
+        done = read_sweep(args.out) if args.out.exists() else []
+        designs = sweep_designs(args.designs, args.seed)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        with args.out.open("a") as out:
+            for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done)):
+                out.write(json.dumps(record) + "\n")
+                out.flush()
+                print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
+                      f"goto {record['goto']:.3f}, {record['difference']:+.3f} ± {record['se']:.3f}", flush=True)
+    except TrainingError as exc:
+        print(f"choice: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("choice: interrupted; run the same command to continue", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
