@@ -24,7 +24,7 @@ SWALLOWING_MODULE = textwrap.dedent("""
 
 def _run(tmp_path: Path, body: str) -> subprocess.CompletedProcess[str]:
     (tmp_path / "swallower.py").write_text(SWALLOWING_MODULE)
-    script = "import sys\nsys.path.insert(0, %r)\n" % str(tmp_path) + textwrap.dedent(body)
+    script = f"import sys\nsys.path.insert(0, {str(tmp_path)!r})\n" + textwrap.dedent(body)
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
                           stdin=subprocess.DEVNULL)
 

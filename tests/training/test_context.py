@@ -152,17 +152,65 @@ def test_that_the_residual_input_holds_the_action_goto_would_take_at_every_step(
 def test_that_the_residual_layouts_goto_is_pinned_to_the_settings_it_was_trained_with() -> None:
     from tumblebot.defaults import OBSERVATION_LAYOUTS
     from tumblebot.sim.goto import GotoConfig
-    from tumblebot.sim.policy import RESIDUAL_GOTO
+    from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
 
     assert tuple(LAYOUTS) == OBSERVATION_LAYOUTS
     assert GotoConfig(**RESIDUAL_GOTO) == GotoConfig(spin_steps_left=2)
+    assert GotoConfig(**DUAL_GOTO) == GotoConfig(turn_tolerance=0.3, spin_steps_left=4)
 
 
-@pytest.mark.parametrize("layout", ["memory", "residual"])
-def test_that_a_memory_or_residual_policy_exports_runs_and_matches_its_network(layout: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("driver", ["second goto", "random"])
+def test_that_the_dual_input_holds_the_actions_of_both_gotos_at_every_step(driver: str) -> None:
+    """The dual layout is the residual layout, then the second goto's choice for this step;
+    both are told what was actually done before (whoever drives)."""
+    from tumblebot.sim.goto import GotoConfig
+    from tumblebot.sim.policy import DUAL_GOTO
+
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    dual, residual = ObservationContext("dual"), ObservationContext("residual")
+    second = GotoController(GotoConfig(**DUAL_GOTO))
+    rng = np.random.default_rng(7)
+    differ = 0
+    try:
+        for seed in range(4):
+            obs, _ = env.reset(seed=seed)
+            for context in (dual, residual):
+                context.reset(XI3.as_tuple())
+            second.reset()
+            for step in range(20):
+                x = dual(obs)
+                action = second.act(obs, step)
+                assert x.shape == (len(LAYOUTS["dual"]),)
+                np.testing.assert_allclose(x[:len(LAYOUTS["residual"])], residual(obs), rtol=1e-6, atol=1e-7)
+                assert (int(x[-2]), int(x[-1])) == action
+                differ += (int(x[-4]), int(x[-3])) != action
+                if driver == "random":
+                    action = (int(rng.integers(3)), int(rng.integers(3)))
+                    second.taken(action)
+                obs, *_ = env.step(np.array(action))
+    finally:
+        env.close()
+    assert differ > 0, "the two gotos never disagreed: the second is not the second setting"
+
+
+def _choice_file(folder: Path) -> Path:
+    """A goto choice from a made-up sweep: the second setting ahead where the legs are long."""
+    from tumblebot.training.choice import GotoChoice, sweep_designs
+
+    designs = sweep_designs(40, seed=1)
+    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l > 0.15 else -0.03} for d in designs]
+    path = folder / "choice.json"
+    path.write_text(GotoChoice.fit(records).to_json())
+    return path
+
+
+@pytest.mark.parametrize("layout", ["memory", "residual", "dual"])
+def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_network(layout: str,
+                                                                                   tmp_path: Path) -> None:
     run, out = tmp_path / layout, tmp_path / "nav-flat.onnx"
+    choice = ["--choice", str(_choice_file(tmp_path))] if layout == "dual" else []
     assert main(["imitate", "--run-dir", str(run), "--iterations", "1", "--episodes", "2", "--updates", "10",
-                 "--net-arch", "16,16", "--envs", "1", "--observation", layout]) == 0
+                 "--net-arch", "16,16", "--envs", "1", "--observation", layout, *choice]) == 0
     assert TrainConfig.load(run / "config.json").observation == layout
     assert main(["export", str(run), "-o", str(out), "--eval-episodes", "0"]) == 0
     card = json.loads(out.with_suffix(".json").read_text())
@@ -173,8 +221,9 @@ def test_that_a_memory_or_residual_policy_exports_runs_and_matches_its_network(l
     model = PPO.load(run / "latest.zip", device="cpu")
     policy = OnnxPolicy(out, task="nav-flat")
     x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS[layout]))).astype(np.float32)
-    if layout == "residual":  # goto's proposal is a command, 0, 1 or 2 per leg
-        x[:, -2:] = np.random.default_rng(1).integers(0, 3, size=(10_000, 2))
+    if layout in ("residual", "dual"):  # goto's proposals are commands, 0, 1 or 2 per leg
+        proposals = len(LAYOUTS[layout]) - len(LAYOUTS["memory"])
+        x[:, -proposals:] = np.random.default_rng(1).integers(0, 3, size=(10_000, proposals))
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
     result = evaluate("nav-flat", XI3, Controller("onnx", str(out)), episodes=2, seed=0, workers=1)
     assert np.isfinite(result.mean_R)

@@ -1,0 +1,90 @@
+"""The goto choice: a sweep's paired differences smoothed over the design space, and the
+DAgger teacher of a ``dual`` policy that follows it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.cli import main
+from tumblebot.sim.design import Design
+from tumblebot.sim.goto import GotoConfig
+from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.training.choice import GotoChoice, read_sweep, sweep, sweep_designs
+from tumblebot.training.config import TrainingError
+from tumblebot.training.imitation import choice_teacher
+
+
+def _records(noise: float = 0.0, seed: int = 0) -> list[dict[str, object]]:
+    """A made-up sweep: the second setting gains 0.03 where l/r > 1.4, loses 0.03 elsewhere."""
+    rng = np.random.default_rng(seed)
+    return [{"design": list(d.as_tuple()),
+             "difference": (0.03 if d.l / d.pivot_radius > 1.4 else -0.03) + noise * float(rng.normal())}
+            for d in sweep_designs(200, seed=seed)]
+
+
+def test_that_the_sweep_draws_only_designs_that_can_tumble() -> None:
+    designs = sweep_designs(50, seed=4)
+    assert len(designs) == 50 and all(d.can_tumble and d.in_bounds() for d in designs)
+    assert designs == sweep_designs(50, seed=4)
+
+
+def test_that_the_choice_recovers_where_the_second_setting_is_ahead_through_noise() -> None:
+    choice = GotoChoice.fit(_records(noise=0.03))
+    held_out = sweep_designs(300, seed=9)
+    truth = np.array([d.l / d.pivot_radius > 1.4 for d in held_out])
+    predicted = np.array([choice.prefers_dual(d.as_tuple()) for d in held_out])
+    far = np.array([abs(d.l / d.pivot_radius - 1.4) > 0.25 for d in held_out])  # away from the boundary
+    assert (predicted[far] == truth[far]).mean() > 0.9
+
+
+def test_that_a_choice_file_round_trips_and_a_bad_one_is_one_error(tmp_path: Path) -> None:
+    choice = GotoChoice.fit(_records())
+    path = tmp_path / "choice.json"
+    path.write_text(choice.to_json())
+    again = GotoChoice.load(path)
+    design = (0.292, 0.129, 0.098, 0.136)
+    assert again.gain(design) == pytest.approx(choice.gain(design)) and again.bandwidth == choice.bandwidth
+    data = json.loads(path.read_text())
+    data["second"] = {**DUAL_GOTO, "spin_steps_left": 5}  # made for other settings than the pinned ones
+    path.write_text(json.dumps(data))
+    with pytest.raises(TrainingError, match="pinned goto settings"):
+        GotoChoice.load(path)
+    path.write_text("{")
+    with pytest.raises(TrainingError, match="goto choice"):
+        GotoChoice.load(path)
+
+
+def test_that_a_bad_sweep_line_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "sweep.jsonl"
+    path.write_text(json.dumps({"design": [0.2, 0.12, 0.1, 0.15], "difference": 0.01}) + "\n{\"design\": 3}\n")
+    with pytest.raises(TrainingError, match=r"sweep.jsonl:2"):
+        read_sweep(path)
+
+
+def test_that_the_teacher_follows_the_setting_the_choice_prefers() -> None:
+    teacher = choice_teacher(GotoChoice.fit(_records()))
+    long_legs, short_legs = np.array([0.25, 0.12, 0.10, 0.20]), np.array([0.25, 0.20, 0.18, 0.15])
+    assert teacher(long_legs) == GotoConfig(**DUAL_GOTO)
+    assert teacher(short_legs) == GotoConfig(**RESIDUAL_GOTO)
+
+
+@pytest.mark.slow
+def test_that_the_sweep_pairs_both_settings_on_the_same_episodes() -> None:
+    design = Design(0.292, 0.129, 0.098, 0.136)
+    records = list(sweep([design], episodes=4, seed=0, workers=1))
+    assert len(records) == 1 and records[0]["episodes"] == 4
+    r = records[0]
+    assert r["difference"] == pytest.approx(r["dual"] - r["goto"])
+    assert next(sweep([design], episodes=4, seed=0, workers=1))["goto"] == r["goto"]  # reproducible
+
+
+def test_that_imitate_refuses_a_dual_student_without_a_choice_before_writing(tmp_path: Path,
+                                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / "run"
+    assert main(["imitate", "--run-dir", str(run), "--observation", "dual", "--iterations", "1"]) == 2
+    assert "needs --choice" in capsys.readouterr().err
+    assert not run.exists()
