@@ -15,8 +15,9 @@ predicts it does better.
    as ``tumblebot evaluate``), and records each design's mean paired difference. Designs
    are appended to a JSON-lines file as they finish, so a stopped sweep resumes.
 2. :class:`GotoChoice` smooths those differences over the design space (Nadaraya–Watson
-   with a Gaussian kernel over the design scaled to the unit cube, its width chosen by
-   leave-one-out error) and predicts, for any design, whether the second setting is ahead.
+   with a Gaussian kernel; the coordinates, :data:`FEATURES`, and the width chosen by
+   leave-one-out error) and chooses, for any design, the second setting where its
+   estimated gain exceeds one standard error, else the first.
 
     python -m tumblebot.training.choice sweep --designs 240 --episodes 48 --seed 3 \\
         --out training/checkpoints/goto-choice/sweep.jsonl
@@ -44,7 +45,7 @@ from tumblebot.training.config import TrainingError
 FORMAT = "tumblebot-goto-choice/1"
 _LOW = np.array([BOUNDS[n][0] for n in PARAMETERS])
 _SPAN = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
-_BANDWIDTHS = (0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4)  #: kernel widths tried, unit-cube lengths
+_BANDWIDTHS = (0.03, 0.05, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4)  #: kernel widths tried
 _ENV: dict[str, Any] = {}
 
 
@@ -119,32 +120,51 @@ def read_sweep(path: Path) -> list[dict[str, Any]]:
     return records
 
 
-def _unit(designs: np.ndarray) -> np.ndarray:
-    unit: np.ndarray = (np.asarray(designs, dtype=float).reshape(-1, 4) - _LOW) / _SPAN
-    return unit
+def _features(designs: np.ndarray, kind: str) -> np.ndarray:
+    """The coordinates the kernel measures distance in (each scaled to about [0, 1])."""
+    d = np.asarray(designs, dtype=float).reshape(-1, 4)
+    radius = np.hypot(d[:, 1] / 2, d[:, 2] / 2)  # the pivot radius r
+    reach = (d[:, 3] / radius - 1.0) / 1.5  # l / r, from 1 (just tumbles) to about 2.5
+    columns = {"l/r": [reach], "l/r, r": [reach, (radius - 0.06) / 0.1], "design": list(((d - _LOW) / _SPAN).T)}
+    if kind not in columns:
+        raise TrainingError(f"unknown goto choice feature {kind!r} (known: {', '.join(FEATURES)})")
+    out: np.ndarray = np.stack(columns[kind], axis=1)
+    return out
+
+
+#: Coordinates tried for the kernel: the ratio of leg length to pivot radius alone, with the
+#: body's size, or the whole design scaled to the unit cube.
+FEATURES = ("l/r", "l/r, r", "design")
 
 
 @dataclass(frozen=True)
 class GotoChoice:
     """A smooth estimate, over the design space, of how much ``goto`` gains from the
-    ``DUAL_GOTO`` settings over ``RESIDUAL_GOTO``; :meth:`prefers_dual` is the teacher's choice."""
+    ``DUAL_GOTO`` settings over ``RESIDUAL_GOTO``; :meth:`prefers_dual` is the teacher's
+    choice: the second setting only where its estimated gain exceeds ``z`` standard errors."""
 
     designs: np.ndarray  #: (N, 4) swept designs, m
     differences: np.ndarray  #: (N,) mean paired difference of each
-    bandwidth: float  #: Gaussian kernel width over the unit cube
+    errors: np.ndarray  #: (N,) its standard error
+    feature: str  #: one of :data:`FEATURES`
+    bandwidth: float  #: Gaussian kernel width in those coordinates
+    z: float = 1.0
 
     @classmethod
-    def fit(cls, records: Sequence[dict[str, Any]]) -> GotoChoice:
-        """The kernel width with the least leave-one-out squared error."""
+    def fit(cls, records: Sequence[dict[str, Any]], z: float = 1.0) -> GotoChoice:
+        """The coordinates and kernel width with the least leave-one-out squared error."""
         if len(records) < 5:
             raise TrainingError(f"a goto choice needs at least 5 swept designs, not {len(records)}")
         designs = np.array([r["design"] for r in records], dtype=float)
         differences = np.array([r["difference"] for r in records], dtype=float)
-        scores = {h: float(np.mean((cls(designs, differences, h)._loo() - differences) ** 2)) for h in _BANDWIDTHS}
-        return cls(designs, differences, min(scores, key=lambda h: scores[h]))
+        errors = np.array([r.get("se", 0.0) for r in records], dtype=float)
+        candidates = [cls(designs, differences, errors, f, h, z) for f in FEATURES for h in _BANDWIDTHS]
+        scores = [float(np.mean((c._loo() - differences) ** 2)) for c in candidates]
+        return candidates[int(np.argmin(scores))]
 
     def _weights(self, at: np.ndarray) -> np.ndarray:
-        d2 = ((_unit(at)[:, None, :] - _unit(self.designs)[None, :, :]) ** 2).sum(axis=-1)
+        here, there = _features(at, self.feature), _features(self.designs, self.feature)
+        d2 = ((here[:, None, :] - there[None, :, :]) ** 2).sum(axis=-1)
         w: np.ndarray = np.exp(-0.5 * d2 / self.bandwidth**2)
         return w
 
@@ -154,18 +174,24 @@ class GotoChoice:
         out: np.ndarray = (w @ self.differences) / np.maximum(w.sum(axis=1), 1e-12)
         return out
 
-    def gain(self, design: Sequence[float]) -> float:
-        """The predicted mean final-R gain of the ``DUAL_GOTO`` settings on ``design``."""
+    def estimate(self, design: Sequence[float]) -> tuple[float, float]:
+        """The predicted mean final-R gain of the ``DUAL_GOTO`` settings on ``design``, and
+        its standard error (from the swept designs' own errors)."""
         w = self._weights(np.asarray(design, dtype=float))[0]
-        return float(w @ self.differences / max(float(w.sum()), 1e-12))
+        total = max(float(w.sum()), 1e-12)
+        return float(w @ self.differences) / total, float(np.sqrt(w**2 @ self.errors**2)) / total
+
+    def gain(self, design: Sequence[float]) -> float:
+        return self.estimate(design)[0]
 
     def prefers_dual(self, design: Sequence[float]) -> bool:
-        return self.gain(design) > 0.0
+        gain, error = self.estimate(design)
+        return gain > self.z * error
 
     def to_json(self) -> str:
-        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO,
-                           "bandwidth": self.bandwidth, "designs": self.designs.tolist(),
-                           "differences": self.differences.tolist()}, indent=1) + "\n"
+        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO, "feature": self.feature,
+                           "bandwidth": self.bandwidth, "z": self.z, "designs": self.designs.tolist(),
+                           "differences": self.differences.tolist(), "errors": self.errors.tolist()}, indent=1) + "\n"
 
     @classmethod
     def load(cls, path: Path) -> GotoChoice:
@@ -174,11 +200,13 @@ class GotoChoice:
             if data.get("format") != FORMAT or data.get("first") != RESIDUAL_GOTO or data.get("second") != DUAL_GOTO:
                 raise ValueError(f"not a {FORMAT} file for the pinned goto settings")
             choice = cls(np.array(data["designs"], dtype=float).reshape(-1, 4),
-                         np.array(data["differences"], dtype=float), float(data["bandwidth"]))
+                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float),
+                         str(data["feature"]), float(data["bandwidth"]), float(data["z"]))
         except (OSError, json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"goto choice {path}: {exc}") from None
-        if len(choice.designs) != len(choice.differences) or not choice.bandwidth > 0:
-            raise TrainingError(f"goto choice {path}: inconsistent designs, differences or bandwidth")
+        if not len(choice.designs) == len(choice.differences) == len(choice.errors) or not choice.bandwidth > 0 \
+                or choice.feature not in FEATURES:
+            raise TrainingError(f"goto choice {path}: inconsistent designs, differences, errors, feature or bandwidth")
         return choice
 
 
@@ -200,8 +228,8 @@ def main(argv: list[str] | None = None) -> int:
             choice = GotoChoice.fit(read_sweep(args.sweep))
             args.output.write_text(choice.to_json())
             share = np.mean([choice.prefers_dual(d) for d in choice.designs])
-            print(f"kernel width {choice.bandwidth}: the second setting is predicted ahead on {share:.0%} "
-                  f"of the {len(choice.designs)} swept designs")
+            print(f"kernel over {choice.feature}, width {choice.bandwidth}: the second setting is chosen on "
+                  f"{share:.0%} of the {len(choice.designs)} swept designs")
             return 0
         if args.designs < 1 or args.episodes < 2 or args.workers < 1:
             raise TrainingError("need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1")
