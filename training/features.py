@@ -17,7 +17,7 @@ scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those,
 goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
 ``MEMORY_FEATURE_NAMES``). A ``residual`` policy gets those, then goto's proposed action,
 each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``); a ``dual`` policy then the second
-goto's action the same way (``DUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
+goto's action the same way and the design's reach ``l / r − 1`` (``DUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
 training environments with the same :class:`ObservationContext` the deployed policy uses.
 """
 
@@ -50,7 +50,8 @@ MEMORY_FEATURE_NAMES: tuple[str, ...] = (*CONTEXT_FEATURE_NAMES, "memory_step_le
 RESIDUAL_FEATURE_NAMES: tuple[str, ...] = (*MEMORY_FEATURE_NAMES, *(f"goto_{leg}_{command}" for leg in ("right", "left")
                                                                     for command in ("reverse", "stop", "forward")))
 DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_{command}" for leg in ("right", "left")
-                                                                  for command in ("reverse", "stop", "forward")))
+                                                                  for command in ("reverse", "stop", "forward")),
+                                       "design_reach")
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 _THESIS = len(OBS_LAYOUT)
@@ -112,8 +113,9 @@ class MemoryFeatures(nn.Module):
 
 class ResidualFeatures(nn.Module):
     """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``);
-    ``dual`` input ``(B, 30)`` → features ``(B, 64)`` (``DUAL_FEATURE_NAMES``, with ``proposals=2``):
-    the memory features, then each proposed action's legs one-hot."""
+    with ``proposals=2`` the ``dual`` input's memory features and both proposals
+    (:class:`DualFeatures` adds the design's reach): the memory features, then each proposed
+    action's legs one-hot."""
 
     def __init__(self, proposals: int = 1) -> None:
         super().__init__()
@@ -129,10 +131,19 @@ class ResidualFeatures(nn.Module):
 
 
 class DualFeatures(ResidualFeatures):
-    """``dual`` input ``(B, 30)`` → features ``(B, 64)`` (``DUAL_FEATURE_NAMES``)."""
+    """``dual`` input ``(B, 30)`` → features ``(B, 65)`` (``DUAL_FEATURE_NAMES``): the two
+    proposals one-hot, then the design's reach, ``l / r − 1`` (leg length over the pivot
+    radius; 0 where the legs just tumble the body), in which the better of the two gotos
+    changes over (``tumblebot.training.choice``) and which a small tanh network would
+    otherwise have to compute from ``x, y, z, l`` itself."""
 
     def __init__(self) -> None:
         super().__init__(proposals=2)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        design = obs[:, _THESIS:_THESIS + 4]
+        radius = 0.5 * torch.sqrt(design[:, 1:2] ** 2 + design[:, 2:3] ** 2).clamp_min(1e-3)
+        return torch.cat([super().forward(obs), design[:, 3:4] / radius - 1.0], dim=-1)
 
 
 _FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
