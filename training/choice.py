@@ -14,10 +14,10 @@ predicts it does better.
    can tumble, under both settings, paired on the same episodes (the same randomisation
    as ``tumblebot evaluate``), and records each design's mean paired difference. Designs
    are appended to a JSON-lines file as they finish, so a stopped sweep resumes.
-2. :class:`GotoChoice` smooths those differences over the design space (Nadaraya–Watson
-   with a Gaussian kernel; the coordinates, :data:`FEATURES`, and the width chosen by
-   leave-one-out error) and chooses, for any design, the second setting where its
-   estimated gain exceeds one standard error, else the first.
+2. :class:`GotoChoice` reads the result: the second setting loses only on bodies whose
+   legs barely tumble them, so it is chosen where the reach ``l / r`` exceeds a threshold
+   fitted to the sweep (the highest whose summed gain is within one standard error of the
+   best), and the first elsewhere.
 
     python -m tumblebot.training.choice sweep --designs 240 --episodes 48 --seed 3 \\
         --out training/checkpoints/goto-choice/sweep.jsonl
@@ -38,14 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.design import Design
 from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
 from tumblebot.training.config import TrainingError
 
 FORMAT = "tumblebot-goto-choice/1"
-_LOW = np.array([BOUNDS[n][0] for n in PARAMETERS])
-_SPAN = np.array([BOUNDS[n][1] - BOUNDS[n][0] for n in PARAMETERS])
-_BANDWIDTHS = (0.03, 0.05, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4)  #: kernel widths tried
 _ENV: dict[str, Any] = {}
 
 
@@ -120,77 +117,60 @@ def read_sweep(path: Path) -> list[dict[str, Any]]:
     return records
 
 
-def _features(designs: np.ndarray, kind: str) -> np.ndarray:
-    """The coordinates the kernel measures distance in (each scaled to about [0, 1])."""
-    d = np.asarray(designs, dtype=float).reshape(-1, 4)
-    radius = np.hypot(d[:, 1] / 2, d[:, 2] / 2)  # the pivot radius r
-    reach = (d[:, 3] / radius - 1.0) / 1.5  # l / r, from 1 (just tumbles) to about 2.5
-    columns = {"l/r": [reach], "l/r, r": [reach, (radius - 0.06) / 0.1], "design": list(((d - _LOW) / _SPAN).T)}
-    if kind not in columns:
-        raise TrainingError(f"unknown goto choice feature {kind!r} (known: {', '.join(FEATURES)})")
-    out: np.ndarray = np.stack(columns[kind], axis=1)
+def reach(design: Sequence[float] | np.ndarray) -> np.ndarray:
+    """``l / r`` of each design ``(x, y, z, l)``: leg length over the pivot radius (1 where
+    the legs just tumble the body)."""
+    d = np.asarray(design, dtype=float).reshape(-1, 4)
+    out: np.ndarray = d[:, 3] / np.hypot(d[:, 1] / 2, d[:, 2] / 2)
     return out
-
-
-#: Coordinates tried for the kernel: the ratio of leg length to pivot radius alone, with the
-#: body's size, or the whole design scaled to the unit cube.
-FEATURES = ("l/r", "l/r, r", "design")
 
 
 @dataclass(frozen=True)
 class GotoChoice:
-    """A smooth estimate, over the design space, of how much ``goto`` gains from the
-    ``DUAL_GOTO`` settings over ``RESIDUAL_GOTO``; :meth:`prefers_dual` is the teacher's
-    choice: the second setting only where its estimated gain exceeds ``z`` standard errors."""
+    """Where ``goto``'s ``DUAL_GOTO`` settings beat ``RESIDUAL_GOTO``: on bodies whose
+    reach ``l / r`` exceeds ``threshold``. The sweep shows the second setting losing only
+    on bodies whose legs barely tumble them, so one threshold on the reach is the model;
+    :meth:`fit` takes, among the thresholds whose summed paired gain over the swept
+    designs is within one standard error of the best, the highest (the second setting on
+    the fewest bodies: the one-standard-error rule)."""
 
+    threshold: float  #: l / r above which the second setting labels the episode
     designs: np.ndarray  #: (N, 4) swept designs, m
-    differences: np.ndarray  #: (N,) mean paired difference of each
+    differences: np.ndarray  #: (N,) mean paired difference of each (second − first)
     errors: np.ndarray  #: (N,) its standard error
-    feature: str  #: one of :data:`FEATURES`
-    bandwidth: float  #: Gaussian kernel width in those coordinates
-    z: float = 1.0
 
     @classmethod
-    def fit(cls, records: Sequence[dict[str, Any]], z: float = 1.0) -> GotoChoice:
-        """The coordinates and kernel width with the least leave-one-out squared error."""
+    def fit(cls, records: Sequence[dict[str, Any]]) -> GotoChoice:
         if len(records) < 5:
             raise TrainingError(f"a goto choice needs at least 5 swept designs, not {len(records)}")
         designs = np.array([r["design"] for r in records], dtype=float)
         differences = np.array([r["difference"] for r in records], dtype=float)
         errors = np.array([r.get("se", 0.0) for r in records], dtype=float)
-        candidates = [cls(designs, differences, errors, f, h, z) for f in FEATURES for h in _BANDWIDTHS]
-        scores = [float(np.mean((c._loo() - differences) ** 2)) for c in candidates]
-        return candidates[int(np.argmin(scores))]
+        order = np.argsort(reach(designs))
+        ratios, gains, variances = reach(designs)[order], differences[order], errors[order] ** 2
+        # threshold k: just below design k in reach order (k = N: the second setting nowhere)
+        candidates = np.append((np.append(0.0, ratios[:-1]) + ratios) / 2, ratios[-1] + 1e-6)
+        totals = np.append(np.cumsum(gains[::-1])[::-1], 0.0)  # gain summed over designs above each
+        best = int(np.argmax(totals))
+        chosen = best
+        for k in range(best + 1, len(candidates)):
+            lost = totals[best] - totals[k]
+            if lost <= float(np.sqrt(variances[best:k].sum())):
+                chosen = k
+        return cls(float(candidates[chosen]), designs, differences, errors)
 
-    def _weights(self, at: np.ndarray) -> np.ndarray:
-        here, there = _features(at, self.feature), _features(self.designs, self.feature)
-        d2 = ((here[:, None, :] - there[None, :, :]) ** 2).sum(axis=-1)
-        w: np.ndarray = np.exp(-0.5 * d2 / self.bandwidth**2)
-        return w
+    def prefers_dual(self, design: Sequence[float] | np.ndarray) -> bool:
+        return bool(reach(design)[0] > self.threshold)
 
-    def _loo(self) -> np.ndarray:
-        w = self._weights(self.designs)
-        np.fill_diagonal(w, 0.0)
-        out: np.ndarray = (w @ self.differences) / np.maximum(w.sum(axis=1), 1e-12)
-        return out
-
-    def estimate(self, design: Sequence[float]) -> tuple[float, float]:
-        """The predicted mean final-R gain of the ``DUAL_GOTO`` settings on ``design``, and
-        its standard error (from the swept designs' own errors)."""
-        w = self._weights(np.asarray(design, dtype=float))[0]
-        total = max(float(w.sum()), 1e-12)
-        return float(w @ self.differences) / total, float(np.sqrt(w**2 @ self.errors**2)) / total
-
-    def gain(self, design: Sequence[float]) -> float:
-        return self.estimate(design)[0]
-
-    def prefers_dual(self, design: Sequence[float]) -> bool:
-        gain, error = self.estimate(design)
-        return gain > self.z * error
+    def summary(self) -> str:
+        above = reach(self.designs) > self.threshold
+        return (f"the second goto setting where l/r > {self.threshold:.3f}: {above.sum()} of {len(above)} swept "
+                f"designs, mean paired difference there {self.differences[above].mean():+.4f}, "
+                f"below {self.differences[~above].mean() if (~above).any() else float('nan'):+.4f}")
 
     def to_json(self) -> str:
-        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO, "feature": self.feature,
-                           "bandwidth": self.bandwidth, "z": self.z, "designs": self.designs.tolist(),
+        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO, "rule": "l/r > threshold",
+                           "threshold": self.threshold, "designs": self.designs.tolist(),
                            "differences": self.differences.tolist(), "errors": self.errors.tolist()}, indent=1) + "\n"
 
     @classmethod
@@ -199,14 +179,13 @@ class GotoChoice:
             data = json.loads(Path(path).read_text())
             if data.get("format") != FORMAT or data.get("first") != RESIDUAL_GOTO or data.get("second") != DUAL_GOTO:
                 raise ValueError(f"not a {FORMAT} file for the pinned goto settings")
-            choice = cls(np.array(data["designs"], dtype=float).reshape(-1, 4),
-                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float),
-                         str(data["feature"]), float(data["bandwidth"]), float(data["z"]))
+            choice = cls(float(data["threshold"]), np.array(data["designs"], dtype=float).reshape(-1, 4),
+                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float))
         except (OSError, json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"goto choice {path}: {exc}") from None
-        if not len(choice.designs) == len(choice.differences) == len(choice.errors) or not choice.bandwidth > 0 \
-                or choice.feature not in FEATURES:
-            raise TrainingError(f"goto choice {path}: inconsistent designs, differences, errors, feature or bandwidth")
+        if not len(choice.designs) == len(choice.differences) == len(choice.errors) \
+                or not np.isfinite(choice.threshold):
+            raise TrainingError(f"goto choice {path}: inconsistent designs, differences, errors or threshold")
         return choice
 
 
@@ -219,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=3, help="designs and episodes (keep it apart from evaluation seeds)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
-    p = sub.add_parser("fit", help="smooth a sweep into the teacher's choice")
+    p = sub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
     p.add_argument("sweep", type=Path)
     p.add_argument("-o", "--output", type=Path, required=True)
     args = parser.parse_args(argv)
@@ -227,9 +206,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "fit":
             choice = GotoChoice.fit(read_sweep(args.sweep))
             args.output.write_text(choice.to_json())
-            share = np.mean([choice.prefers_dual(d) for d in choice.designs])
-            print(f"kernel over {choice.feature}, width {choice.bandwidth}: the second setting is chosen on "
-                  f"{share:.0%} of the {len(choice.designs)} swept designs")
+            print(choice.summary())
             return 0
         if args.designs < 1 or args.episodes < 2 or args.workers < 1:
             raise TrainingError("need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1")

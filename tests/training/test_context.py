@@ -198,7 +198,8 @@ def _choice_file(folder: Path) -> Path:
     from tumblebot.training.choice import GotoChoice, sweep_designs
 
     designs = sweep_designs(40, seed=1)
-    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l > 0.15 else -0.03} for d in designs]
+    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03}
+               for d in designs]
     path = folder / "choice.json"
     path.write_text(GotoChoice.fit(records).to_json())
     return path
