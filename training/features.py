@@ -17,8 +17,9 @@ scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those,
 goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
 ``MEMORY_FEATURE_NAMES``). A ``residual`` policy gets those, then goto's proposed action,
 each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``); a ``dual`` policy then the second
-goto's action the same way and the design's reach ``l / r − 1`` (``DUAL_FEATURE_NAMES``). :class:`ContextObservation` builds either input inside the
-training environments with the same :class:`ObservationContext` the deployed policy uses.
+goto's action the same way and the design's reach ``l / r − 1`` (``DUAL_FEATURE_NAMES``).
+:class:`ContextObservation` builds any of these inputs inside the training environments
+with the same :class:`ObservationContext` the deployed policy uses.
 """
 
 from __future__ import annotations
