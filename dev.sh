@@ -77,6 +77,7 @@ case "$cmd" in
         shift
         if [[ ${1:-} == "--fast" ]]; then
             shift
+            apt_install $FIRMWARE_PACKAGES  # the firmware build test runs in the fast loop too
             ensure_venv "train,opt,host,dev,agent"
             echo "dev.sh: ruff"
             "$VENV/bin/ruff" check .
