@@ -1,5 +1,5 @@
 """Which of two ``goto`` settings suits a body: a sweep over the design space, and a
-smooth model of its result, the teacher of the ``dual`` navigation policy.
+threshold fitted to its result, the teacher of the ``dual`` navigation policy.
 
 ``goto``'s best settings depend on the body it drives
 (``reports/policy-headroom/README.md``): ``turn_tolerance`` 0.3 with ``spin_steps_left``
@@ -212,6 +212,11 @@ def main(argv: list[str] | None = None) -> int:
             raise TrainingError("need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1")
         done = read_sweep(args.out) if args.out.exists() else []
         designs = sweep_designs(args.designs, args.seed)
+        for k, record in enumerate(done):  # continue only the same sweep
+            if k >= len(designs) or record.get("seed") != args.seed or record.get("episodes") != args.episodes \
+                    or not np.allclose(record["design"], designs[k].as_tuple()):
+                raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
+                                    f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed})")
         args.out.parent.mkdir(parents=True, exist_ok=True)
         with args.out.open("a") as out:
             for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done)):

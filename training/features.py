@@ -113,10 +113,9 @@ class MemoryFeatures(nn.Module):
 
 
 class ResidualFeatures(nn.Module):
-    """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``);
-    with ``proposals=2`` the ``dual`` input's memory features and both proposals
-    (:class:`DualFeatures` adds the design's reach): the memory features, then each proposed
-    action's legs one-hot."""
+    """``residual`` input ``(B, 28)`` → features ``(B, 58)`` (``RESIDUAL_FEATURE_NAMES``):
+    the memory features, then each leg of goto's proposed action one-hot. With
+    ``proposals=2`` the same for both of a ``dual`` input's proposals (:class:`DualFeatures`)."""
 
     def __init__(self, proposals: int = 1) -> None:
         super().__init__()

@@ -433,6 +433,9 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
         raise TrainingError(f"--lookahead {horizon} must be 1–{EPISODE_STEPS} steps")
     if not (source / "dagger.npz").is_file():
         raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
+    if config.observation == "dual":
+        raise TrainingError(f"{source} is a dual run: refine's search continues with goto's defaults, not the "
+                            "setting its teacher chose for each body")
     config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps
     _new_run(config, imitation, run_dir, {"kind": "goto+search", "lookahead": horizon, "draws": draws,
                                           "future": "drawn anew" if draws else "the episode's own (clairvoyant)",
