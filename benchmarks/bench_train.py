@@ -1,10 +1,11 @@
 """Training throughput against the bare environments, on this machine's cores.
 
-Run: ``.venv/bin/python benchmarks/bench_train.py [--steps N] [--envs K] [--rounds R]``
+Run: ``.venv/bin/python benchmarks/bench_train.py [--steps N] [--envs K] [--rounds R] [--observation L]``
 
 Interleaved in one run, ``R`` rounds of each (machines are shared and noisy, so only the
 ratios measured side by side mean anything), all on the same ``SubprocVecEnv`` of ``K``
-``nav-flat`` environments with the ``context`` observation, over designs that can tumble:
+``nav-flat`` environments with the bundled policy's ``dual`` observation (or ``--observation``),
+over designs that can tumble:
 
 * ``bare``: ``N`` vectorised steps with random actions (the physics and the pipes alone);
 * ``DAgger``: ``N`` steps of :func:`tumblebot.training.imitation.collect` with the
@@ -38,13 +39,15 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=4096, help="environment steps per measurement")
     parser.add_argument("--envs", type=int, default=4, help="environments (the bundled runs used 4 on 2 cores)")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--observation", choices=("context", "memory", "residual", "dual"), default="dual",
+                        help="policy input (default dual, the bundled navigation policies')")
     args = parser.parse_args()
-    config = TrainConfig(task="nav-flat", observation="context", tumbling_designs_only=True, n_envs=args.envs,
+    config = TrainConfig(task="nav-flat", observation=args.observation, tumbling_designs_only=True, n_envs=args.envs,
                          net_arch=[256, 256], n_steps=max(args.steps // args.envs, 1), batch_size=512, n_epochs=5,
                          learning_rate=5e-5, clip_range=0.1, ent_coef=0.0)
     print(f"tumblebot training benchmark, {time.strftime('%Y-%m-%d')}, {platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}; {args.envs} environments, "
-          f"{args.steps} steps per measurement, {args.rounds} rounds")
+          f"{args.steps} steps per measurement, {args.rounds} rounds, {args.observation} observation")
     env = build_vec_env(config, seed=0)
     times: dict[str, list[float]] = {"bare": [], "DAgger": [], "PPO": []}
     with tempfile.TemporaryDirectory() as tmp:
