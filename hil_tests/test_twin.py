@@ -47,21 +47,28 @@ def test_that_three_navigation_trials_through_the_twin_agree_with_pure_simulatio
     """The twin runs in real time, so a starved machine shifts its errors by timing alone
     (measured on 2 cores under three busy loops: trial-set medians 0.12–0.34 m against
     0.10–0.12 m unloaded, with the world dropping no simulated time). A second trial set
-    is run when the first is NOT CONSISTENT; a real frame, servo-direction or timing bug
-    fails both (``tests/host/test_twin_check.py`` shows the check catches each one)."""
+    is run when the first is NOT CONSISTENT, or when one of its trials was aborted (a starved
+    agent sending no telemetry for 1.5 s trips the host's safety stop, which redoes the
+    trial; seen once on 2 cores under two busy loops and a training benchmark); a real
+    frame, servo-direction, timing or link bug fails both (``tests/host/test_twin_check.py``
+    shows the check catches each of the first three)."""
     verdicts = []
+    aborted: list[Any] | None = None
     for attempt in range(2):
         out = tmp_path / f"twin-{attempt}"
         run = tb("twin", "run", "--out", str(out), "--points", "3", "--per-point", "1", "--check")
-        verdicts.append(run.stdout.strip().splitlines()[-2:] + run.stderr[-1000:].splitlines())
-        if run.returncode == 0:
+        aborted = load_index(out)["aborted"] if run.returncode == 0 else None
+        verdicts.append(run.stdout.strip().splitlines()[-2:] + run.stderr[-1000:].splitlines()
+                        + [f"aborted trials: {aborted}"])
+        if run.returncode == 0 and not aborted:
             break
-    assert run.returncode == 0, "both trial sets NOT CONSISTENT:\n" + "\n".join(map(str, verdicts))
+    assert run.returncode == 0 and aborted == [], \
+        "both trial sets NOT CONSISTENT or with an aborted trial:\n" + "\n".join(map(str, verdicts))
     assert "CONSISTENT" in run.stdout
     check = json.loads((out / "consistency.json").read_text())
     assert check["consistent"] and check["twin_n"] == 3
     index = load_index(out)
-    assert len(index["trials"]) == 3 and index["aborted"] == []
+    assert len(index["trials"]) == 3
     for entry in index["trials"]:
         log = read_trial(out / entry["file"])
         assert log.complete and len(log.topic("/decision")) == 20
