@@ -146,8 +146,9 @@ class GotoChoice:
         designs = np.array([r["design"] for r in records], dtype=float)
         differences = np.array([r["difference"] for r in records], dtype=float)
         errors = np.array([r.get("se", 0.0) for r in records], dtype=float)
-        order = np.argsort(reach(designs))
-        ratios, gains, variances = reach(designs)[order], differences[order], errors[order] ** 2
+        ratios = reach(designs)
+        order = np.argsort(ratios)
+        ratios, gains, variances = ratios[order], differences[order], errors[order] ** 2
         # threshold k: just below design k in reach order (k = N: the second setting nowhere)
         candidates = np.append((np.append(0.0, ratios[:-1]) + ratios) / 2, ratios[-1] + 1e-6)
         totals = np.append(np.cumsum(gains[::-1])[::-1], 0.0)  # gain summed over designs above each
