@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from tumblebot.host.emulator import EmulatedUno
+from tumblebot.host.emulator import WAIT, EmulatedUno
 from tumblebot.pi_agent import protocol as P
 
 
@@ -34,7 +34,20 @@ class Link:
         self.received += frames
         return frames
 
-    def wait_ready(self, timeout: float = 3.0) -> P.Frame:
+    def wait_for(self, mtype: P.MsgType, timeout: float = WAIT) -> P.Frame:
+        """The first frame of this type received so far or within ``timeout`` seconds."""
+        import time
+
+        end = time.monotonic() + timeout
+        while True:
+            for f in self.received:
+                if f.type == mtype:
+                    return f
+            if time.monotonic() > end:
+                raise TimeoutError(f"no {mtype.name} from the firmware within {timeout} s")
+            self.read(0.05)
+
+    def wait_ready(self, timeout: float = WAIT) -> P.Frame:
         import time
 
         end = time.monotonic() + timeout
@@ -43,7 +56,7 @@ class Link:
                 if f.type == P.MsgType.READY:
                     self.epoch = f.epoch
                     return f
-        raise TimeoutError("no READY from the firmware")
+        raise TimeoutError(f"no READY from the firmware within {timeout} s")
 
     def send(self, mtype: P.MsgType, payload: bytes = b"", seq: int | None = None, epoch: int | None = None) -> int:
         if seq is None:
@@ -58,7 +71,7 @@ class Link:
     def speeds(self, right: int, left: int) -> int:
         return self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left))
 
-    def status(self, timeout: float = 1.0) -> P.Status:
+    def status(self, timeout: float = WAIT) -> P.Status:
         import time
 
         self.send(P.MsgType.GET_STATUS)

@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from tumblebot.host.emulator import EmulatedUno
+from tumblebot.host.emulator import WAIT, EmulatedUno
 from tumblebot.pi_agent import protocol as P
 
 KEY = bytes(range(32))
@@ -45,8 +45,9 @@ class Host:
         self.counter = 0
         self.keys: P.LinkKeys | None = None
         self.last_telemetry_wire = b""
+        self.answered = -1.0  # time.monotonic() of the last telemetry reply
 
-    def handshake(self, timeout: float = 2.0) -> bytes:
+    def handshake(self, timeout: float = WAIT) -> bytes:
         """HELLO until a SESSION answers it; returns the session id."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -90,9 +91,10 @@ class Host:
         self.send(wire)
         return wire
 
-    def telemetry(self, timeout: float = 3.0) -> dict[str, Any]:
+    def telemetry(self, timeout: float = WAIT) -> dict[str, Any]:
         """Ask until answered (the agent answers at most 20 requests a second)."""
         nonce = random.getrandbits(32)
+        time.sleep(max(0.0, self.answered + 0.055 - time.monotonic()))  # not one the agent would rate-limit
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self.send(self.datagram(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(nonce)))
@@ -109,6 +111,7 @@ class Host:
                 body: dict[str, Any] = json.loads(d.payload)
                 if body["nonce"] == nonce:
                     self.last_telemetry_wire = data
+                    self.answered = time.monotonic()
                     return body
         raise TimeoutError("no telemetry")
 
@@ -234,7 +237,7 @@ def tapped(tmp_path: Path) -> Iterator[Chain]:
 def test_that_a_command_from_the_host_moves_the_servos_and_then_keeps_them_moving(chain) -> None:  # type: ignore[no-untyped-def]
     uno, host, _, _ = chain
     host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, timeout=0.2, tolerance=1.0)
+    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
     for _ in range(8):  # the agent's 10 Hz keepalive holds the firmware's 250 ms watchdog off
         time.sleep(0.1)
         host.command(1, 1)
@@ -242,77 +245,110 @@ def test_that_a_command_from_the_host_moves_the_servos_and_then_keeps_them_movin
 
 
 def test_that_forged_replayed_and_foreign_datagrams_never_act(chain) -> None:  # type: ignore[no-untyped-def]
+    """Each datagram that must not act is followed by a telemetry request, which the agent
+    handles after it (one socket, in order), so the checks wait on the agent, not a clock."""
     uno, host, _, _ = chain
     host.send(host.datagram(P.UdpType.COMMAND, P.command_payload(1, 1), key=os.urandom(32)))  # forged
-    time.sleep(0.2)
-    assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=1)
+    assert host.telemetry()["drops"]["unauthenticated"] == 1
     wire = host.command(-1, -1)
-    uno.wait_for(1000.5, 2000.5, timeout=0.2, tolerance=1.0)
+    uno.wait_for(1000.5, 2000.5, tolerance=1.0)
     host.command(0, 0)
-    uno.wait_for(NEUTRAL, NEUTRAL, timeout=0.3, tolerance=1.0)
+    uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
+    mark = time.monotonic()
     host.send(wire)  # replay of the (-1, -1) command
-    time.sleep(0.25)
-    assert uno.widths()[0] == pytest.approx(NEUTRAL, abs=1)
-    deadline = time.monotonic() + 3.0  # STATUS is asked for once a second: wait for one after arming
+    assert host.telemetry()["drops"]["replayed"] == 1
+    uno.wait_until_us(uno.sim_us + 100_000)  # five servo frames after the agent had dropped it
+    assert not [e for e in uno.events_since(mark) if abs(e.width - NEUTRAL) > 1]
+    deadline = time.monotonic() + WAIT  # STATUS is asked for once a second: wait for one after arming
     while not (telemetry := host.telemetry())["firmware_status"]["flags"] & 1:
         assert time.monotonic() < deadline, telemetry
         time.sleep(0.1)
     drops = telemetry["drops"]
     assert drops["unauthenticated"] == 1 and drops["replayed"] == 1
     assert telemetry["link_loss"] == 0.0
-    assert telemetry["rtt_ms"]["median"] < 50
-    assert telemetry["firmware_status"]["flags"] & 1  # armed
+    assert telemetry["rtt_ms"]["median"] > 0  # measured (benchmarks/bench_link.py times the link)
 
 
 def test_that_too_frequent_commands_act_at_10_hz_with_the_latest_winning(chain) -> None:  # type: ignore[no-untyped-def]
     uno, host, _, _ = chain
+    first = time.monotonic()  # the agent acts on (1, 1) after this, so its next slot is 100 ms later
     host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, timeout=0.2, tolerance=1.0)
-    start = time.monotonic()
-    host.command(-1, -1)  # within the same 100 ms slot ...
+    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    mark = time.monotonic()
+    host.command(-1, -1)  # within the same 100 ms slot (or, on a starved machine, waiting with the next) ...
     host.command(0, 1)  # ... superseded by this one
-    uno.wait_for(NEUTRAL, 1000.5, timeout=0.3, tolerance=1.0)
-    assert time.monotonic() - start >= 0.05  # waited for its slot
-    assert not any(abs(e.width - 1000.5) < 1 and e.pin == 9 for e in uno.events_since(start))  # (-1,-1) never acted
+    reached = uno.wait_for(NEUTRAL, 1000.5, tolerance=1.0)
+    assert reached.wall - first >= 0.1 - 0.005  # waited for its slot
+    assert not any(abs(e.width - 1000.5) < 1 and e.pin == 9 for e in uno.events_since(mark))  # (-1,-1) never acted
     assert host.telemetry()["rate_limited"]["COMMAND"] == 1
 
 
+def wait_for_log(agent: subprocess.Popen[str], text: str, timeout: float = WAIT) -> str:
+    """The agent's first log line from now on containing ``text`` (read from its stderr)."""
+    assert agent.stderr is not None
+    fd, seen = agent.stderr.fileno(), b""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        if select.select([fd], [], [], left)[0]:
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                break
+            seen += chunk
+            for line in seen.decode(errors="replace").splitlines():
+                if text in line:
+                    return line
+    raise AssertionError(f"the agent did not log {text!r} within {timeout} s: {seen[-500:]!r}")
+
+
 def test_that_losing_the_host_for_a_second_stops_the_robot(chain) -> None:  # type: ignore[no-untyped-def]
-    uno, host, _, _ = chain
+    """The robot stops with no further datagram, and it is the agent's host timer that
+    stops it (tests/pi_agent/test_agent_timing.py holds that timer to one second on a
+    test clock; benchmarks/bench_link.py times the stop on the wall clock)."""
+    uno, host, agent, _ = chain
     host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, timeout=0.2, tolerance=1.0)
-    start = time.monotonic()
-    waited = start + uno.wait_for(NEUTRAL, NEUTRAL, timeout=2.0, tolerance=1.0) - start
-    assert 0.9 < waited < 1.3
+    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    wait_for_log(agent, "no valid datagram from the host")
+    uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
+    telemetry = host.telemetry()
+    assert telemetry["host_timeouts"] == 1 and telemetry["command"] == [0, 0]
 
 
 def test_that_a_vanished_serial_device_is_detected_and_the_agent_reconnects(chain) -> None:  # type: ignore[no-untyped-def]
     uno, host, _, device = chain
     uno.close()  # the USB cable is pulled: the pty disappears
-    deadline = time.monotonic() + 1.5
+    deadline = time.monotonic() + WAIT
     while host.telemetry()["serial_connected"]:
-        assert time.monotonic() < deadline, "loss not detected within about 1 s"
+        assert time.monotonic() < deadline, f"loss not detected within {WAIT} s"
         time.sleep(0.05)
     fresh = EmulatedUno()  # plugged back in (a new boot)
     try:
         device.unlink()
         device.symlink_to(fresh.pty)
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 2 * WAIT
         while not host.telemetry()["serial_connected"]:
             assert time.monotonic() < deadline, "agent did not reconnect"
             time.sleep(0.1)
         host.command(1, 0)
-        fresh.wait_for(2000.5, NEUTRAL, timeout=0.5, tolerance=1.0)
+        fresh.wait_for(2000.5, NEUTRAL, tolerance=1.0)
     finally:
         fresh.close()
 
 
+def drops_but_rate_limited(telemetry: dict[str, Any]) -> int:
+    return sum(n for reason, n in telemetry["drops"].items() if reason != "rate_limited")
+
+
 @pytest.mark.slow
 def test_that_100000_random_and_mutated_datagrams_neither_crash_nor_actuate(chain) -> None:  # type: ignore[no-untyped-def]
+    """Sent in batches, each followed by a telemetry request that the agent answers only
+    after the batch (one socket, in order): the kernel never overflows the agent's socket
+    buffer, however busy the machine, so every datagram must be counted."""
     uno, host, agent, _ = chain
     rng = random.Random(7)
     start = time.monotonic()
+    before = drops_but_rate_limited(host.telemetry())
     template = host.datagram(P.UdpType.COMMAND, P.command_payload(1, 1), counter=10**9)
+    batch = 200  # the agent's socket holds 256 small datagrams (Linux's default buffer)
     for i in range(100_000):
         if i % 2:
             wire = bytes(rng.getrandbits(8) for _ in range(rng.randrange(0, 64)))
@@ -321,14 +357,13 @@ def test_that_100000_random_and_mutated_datagrams_neither_crash_nor_actuate(chai
             mutated[rng.randrange(len(mutated))] ^= 1 << rng.randrange(8)
             wire = bytes(mutated)
         host.send(wire)
-        if i % 200 == 0:
-            time.sleep(0.01)  # let the agent keep up rather than the kernel dropping them
-    time.sleep(0.3)
+        if i % batch == batch - 1:
+            host.telemetry()
     assert agent.poll() is None, agent.stderr.read() if agent.stderr else ""
-    assert {round(e.width) for e in uno.events_since(start)} <= {1500, 1501}
     telemetry = host.telemetry()
     assert telemetry["command"] == [0, 0]
-    assert sum(telemetry["drops"].values()) > 90_000  # counted, give or take kernel buffer overflows
+    assert drops_but_rate_limited(telemetry) - before == 100_000
+    assert {round(e.width) for e in uno.events_since(start)} <= {1500, 1501}
 
 
 # --- regression tests named after the holes an independent client found -------------------
@@ -340,9 +375,9 @@ def test_that_commands_captured_before_an_agent_restart_never_act_after_it(tmp_p
     c = Chain(tmp_path)
     try:
         captured = [c.host.command(1, 1) for _ in range(10)]
-        c.uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+        c.uno.wait_for(2000.5, 1000.5, tolerance=1.0)
         c.host.command(0, 0)
-        c.uno.wait_for(NEUTRAL, NEUTRAL, timeout=0.5, tolerance=1.0)
+        c.uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
         c.stop_agent()
         c.start_agent()  # a Pi reboot, or Restart=always after a crash: a new session
         start = time.monotonic()
@@ -353,7 +388,7 @@ def test_that_commands_captured_before_an_agent_restart_never_act_after_it(tmp_p
         assert {round(e.width) for e in c.uno.events_since(start)} <= {1500, 1501}
         assert c.host.telemetry()["drops"]["unauthenticated"] == 10
         c.host.command(1, 0)  # the real host, re-handshaken, still drives the robot
-        c.uno.wait_for(2000.5, NEUTRAL, timeout=1.0, tolerance=1.0)
+        c.uno.wait_for(2000.5, NEUTRAL, tolerance=1.0)
     finally:
         c.close()
 
@@ -364,19 +399,21 @@ def test_that_a_reflected_telemetry_datagram_does_not_lock_the_host_out(chain) -
     host.send(host.last_telemetry_wire)  # the agent's own reply, sent back to it
     time.sleep(0.1)
     host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
     assert host.telemetry()["drops"]["malformed"] == 1
 
 
 def test_that_an_unknown_error_code_from_the_serial_side_does_not_kill_the_agent(tapped: Chain) -> None:
     epoch = tapped.host.telemetry()["epoch"]
     tapped.tap.to_agent(_frame(epoch, 60_000, P.MsgType.ERROR, P.ErrorReport(0x42, 1).pack()))  # type: ignore[union-attr]
-    time.sleep(0.3)
+    deadline = time.monotonic() + WAIT
+    while (telemetry := tapped.host.telemetry())["firmware_errors"].get("unknown_0x42") != 1:
+        assert tapped.agent is not None and tapped.agent.poll() is None, "the agent died"
+        assert time.monotonic() < deadline, telemetry["firmware_errors"]
+        time.sleep(0.05)
     assert tapped.agent is not None and tapped.agent.poll() is None
-    telemetry = tapped.host.telemetry()
-    assert telemetry["firmware_errors"].get("unknown_0x42") == 1
     tapped.host.command(1, 1)
-    tapped.uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+    tapped.uno.wait_for(2000.5, 1000.5, tolerance=1.0)
 
 
 def test_that_commands_at_50_hz_never_make_the_agent_declare_the_link_lost(chain) -> None:  # type: ignore[no-untyped-def]
@@ -401,7 +438,7 @@ def test_that_a_stray_ready_with_another_epoch_does_not_lock_commands_out(tapped
     tapped.tap.to_agent(_frame((epoch + 7) & 0xFFFF, 0, P.MsgType.READY, P.Ready(1, 0, 1, 0).pack()))  # type: ignore[union-attr]
     time.sleep(0.05)
     host.command(-1, -1)
-    tapped.uno.wait_for(1000.5, 2000.5, timeout=1.0, tolerance=1.0)  # was a 20 s lock-out
+    tapped.uno.wait_for(1000.5, 2000.5, tolerance=1.0)  # was a 20 s lock-out
     assert host.telemetry()["epoch"] == epoch
 
 
@@ -415,7 +452,7 @@ def test_that_an_agent_restarted_on_a_port_that_does_not_reset_the_uno_resynchro
         c.stop_agent()
         c.start_agent()  # seq restarts while the firmware (not reset by a pty) remembers its last one
         c.host.command(-1, 0)
-        c.uno.wait_for(1000.5, NEUTRAL, timeout=1.5, tolerance=1.0)
+        c.uno.wait_for(1000.5, NEUTRAL, tolerance=1.0)
     finally:
         c.close()
 
@@ -424,33 +461,40 @@ def test_that_a_sender_id_flood_keeps_the_agent_state_bounded(chain) -> None:  #
     uno, host, agent, _ = chain
     for sender in range(1000, 41_000):  # a key holder inventing sender ids
         host.send(host.datagram(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(0), sender=sender))
-        if sender % 500 == 0:
-            time.sleep(0.01)
-    time.sleep(0.5)
+        if sender % 200 == 199:
+            host.telemetry()  # answered after the batch: the kernel never drops one (see the fuzz test)
     telemetry = host.telemetry()
-    assert telemetry["senders"] <= P.MAX_SENDERS and telemetry["senders_evicted"] > 30_000
+    assert telemetry["senders"] <= P.MAX_SENDERS and telemetry["senders_evicted"] >= 40_000 - P.MAX_SENDERS
     assert agent.poll() is None
     host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, timeout=0.5, tolerance=1.0)
+    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
 
 
 def test_that_a_stop_flood_does_not_flood_the_serial_link(chain) -> None:  # type: ignore[no-untyped-def]
     _, host, _, _ = chain
     before = host.telemetry()
-    time.sleep(1.1)  # a STATUS with the counter at the start
-    ok0 = host.telemetry()["firmware_status"]["frames_ok"]
-    start, sent = time.monotonic(), 0
-    while time.monotonic() - start < 1.0:  # up to 1000 STOP/s (fewer on a busy machine)
-        host.send(host.datagram(P.UdpType.STOP))
-        sent += 1
-        time.sleep(0.001)
-    time.sleep(1.1)
-    after = host.telemetry()
-    frames = after["firmware_status"]["frames_ok"] - ok0
-    # keepalive 10/s + ping 10/s + status 1/s over about 2.2 s, not 321 frames a second
-    assert frames < 80, frames
+    first = before["firmware_status"]
+    deadline = time.monotonic() + WAIT  # a STATUS newer than the one at the start
+    while (status := host.telemetry()["firmware_status"]) == first:
+        assert time.monotonic() < deadline, "no new STATUS"
+        time.sleep(0.1)
+    ok0, start = status["frames_ok"], time.monotonic()
+    sent = 0
+    for _ in range(5):  # 500 STOPs as fast as they go, in batches the agent's socket always holds
+        for _ in range(100):
+            host.send(host.datagram(P.UdpType.STOP))
+            sent += 1
+        host.telemetry()
+    deadline = time.monotonic() + WAIT  # and a STATUS from after the flood
+    while (after := host.telemetry())["firmware_status"]["frames_ok"] == ok0 or time.monotonic() - start < 1.1:
+        assert time.monotonic() < deadline, "no new STATUS"
+        time.sleep(0.1)
     limited = after["rate_limited"].get("STOP", 0) - before["rate_limited"].get("STOP", 0)
-    assert sent > 300 and limited >= 0.9 * sent, (sent, limited)  # each one reached the agent, none the serial link
+    assert limited == sent, (sent, limited)  # each one reached the agent, and none the serial link
+    frames = after["firmware_status"]["frames_ok"] - ok0
+    # the agent's own 21 frames a second (keepalive, ping, status) over the time the two STATUS
+    # replies can span, not 500 more
+    assert frames < 21 * (time.monotonic() - start + 2.0), frames
 
 
 @pytest.mark.slow
@@ -480,4 +524,4 @@ def test_that_random_and_mutated_serial_frames_never_kill_the_agent_nor_move_the
     assert tapped.agent is not None and tapped.agent.poll() is None
     assert {round(e.width) for e in tapped.uno.events_since(start)} <= {1500, 1501}  # nobody commanded motion
     host.command(0, 1)
-    tapped.uno.wait_for(NEUTRAL, 1000.5, timeout=2.0, tolerance=1.0)
+    tapped.uno.wait_for(NEUTRAL, 1000.5, tolerance=1.0)

@@ -298,6 +298,7 @@ class Agent:
         self.drops: collections.Counter[str] = collections.Counter()
         self.rate_limited: collections.Counter[str] = collections.Counter()  #: rate_limited drops by type
         self.accepted = 0
+        self.host_timeouts = 0  #: stops because no valid datagram came for HOST_TIMEOUT
         self.command = (0, 0)  #: what the Arduino is being told
         self.pending: tuple[int, int] | None = None
         self.last_acted = -1e9
@@ -376,7 +377,7 @@ class Agent:
 
     def _send_telemetry(self, dest: tuple[str, int], nonce: int, now: float) -> None:
         body = {"nonce": nonce, "command": list(self.command), "accepted": self.accepted,
-                "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
+                "host_timeouts": self.host_timeouts, "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
                 "senders": len(self.guard), "senders_evicted": self.guard.evicted,
                 **self.link.telemetry(now)}
         self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
@@ -397,6 +398,7 @@ class Agent:
             self._apply(command, now)
         if self.command != (0, 0) and now - self.last_valid > HOST_TIMEOUT:
             log.warning("no valid datagram from the host for %.1f s: stopping", HOST_TIMEOUT)
+            self.host_timeouts += 1
             self.pending = None
             self._apply((0, 0), now)
         if now - self.last_keepalive >= KEEPALIVE_INTERVAL:

@@ -12,6 +12,8 @@
  *                           when it differs from the last one by more than 0.75 us
  *   @reset T                the AVR was reset (command or watchdog)
  *   @time T                 simulated time, every simulated millisecond (for flow control)
+ *   @rx T N                 N more bytes from the pty were handed to the AVR's UART at T (so
+ *                           tests can time the firmware in simulated time, whatever the load)
  *
  * stdin commands: "start" (begin running: open the pty first, pyserial's open() discards
  * pending input), "reset" (reset the AVR now), "quit".
@@ -42,6 +44,7 @@
 #include <simavr/sim_elf.h>
 
 static avr_t *avr;
+static unsigned long long sim_us(void);
 
 /* --- UART0 <-> pseudo-terminal bridge ------------------------------------------------ */
 static int pty_master = -1;
@@ -95,6 +98,7 @@ static void bridge_pump(void) {
       tx_len -= (size_t)n;
     }
   }
+  int handed = 0;
   while (uart_xon) {
     if (rx_pos >= rx_len) {
       rx_len = read(pty_master, rx_buf, sizeof rx_buf);
@@ -105,7 +109,9 @@ static void bridge_pump(void) {
       }
     }
     avr_raise_irq(uart_input, rx_buf[rx_pos++]);
+    ++handed;
   }
+  if (handed > 0) printf("@rx %llu %d\n", sim_us(), handed);
 }
 static avr_cycle_count_t rise[2];
 static double last_width[2] = {-1.0, -1.0};

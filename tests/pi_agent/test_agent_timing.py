@@ -1,0 +1,67 @@
+"""The agent's timers on a clock the test holds (the HIL tests run them in real time,
+where a busy machine can only make them later)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from tumblebot.pi_agent import protocol as P
+from tumblebot.pi_agent.agent import HOST_TIMEOUT, Agent, AgentConfig
+
+KEY = bytes(range(32))
+HOST = ("127.0.0.1", 40_000)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def held(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Agent, Clock]]:
+    clock = Clock()
+    monkeypatch.setattr(time, "monotonic", clock)  # the agent reads time.monotonic() at each step
+    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=0,
+                              allowed_host="127.0.0.1"), KEY)
+    try:
+        yield agent, clock
+    finally:
+        agent.sock.close()
+
+
+def command(agent: Agent, counter: int, right: int, left: int) -> bytes:
+    return P.encode_datagram(P.Datagram(P.UdpType.COMMAND, 7, 1, counter, P.command_payload(right, left)), agent.keys)
+
+
+def test_that_a_silent_host_stops_the_robot_after_one_second_and_not_before(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    assert agent.command == (1, 1)
+    sent = clock.now
+    for dt in (0.1, 0.5, 0.9, HOST_TIMEOUT - 1e-3):
+        clock.now = sent + dt
+        agent.step(timeout=0)
+        assert agent.command == (1, 1) and agent.host_timeouts == 0, dt
+    clock.now = sent + HOST_TIMEOUT + 1e-3
+    agent.step(timeout=0)
+    assert agent.command == (0, 0) and agent.host_timeouts == 1
+    clock.now += 5.0
+    agent.step(timeout=0)
+    assert agent.host_timeouts == 1  # one stop, not one a step
+
+
+def test_that_each_valid_datagram_restarts_the_host_timer(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    for counter in range(1, 11):  # a command every 0.8 s for 8 s: never silent for a second
+        agent.handle_datagram(command(agent, counter, 1, 0), HOST, clock.now)
+        agent.step(timeout=0)
+        clock.now += 0.8
+        agent.step(timeout=0)
+        assert agent.command == (1, 0) and agent.host_timeouts == 0
