@@ -2,8 +2,7 @@
 
 Run: ``.venv/bin/python benchmarks/bench_policy.py --run RUN --policy POLICY.onnx``
 (defaults: the committed run the bundled ``nav-flat`` policy was exported from,
-``training/checkpoints/bc-nav-flat``, and that policy; for the dual policy pass
-``--run training/checkpoints/dual-nav-flat --policy policies/nav-flat-dual.onnx``).
+``training/checkpoints/dual-nav-flat``, and that policy).
 
 1. Latency per observation, onnxruntime (:class:`OnnxPolicy`, what evaluation, the
    optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99:
@@ -92,7 +91,7 @@ def throughput(policy: OnnxPolicy, episodes: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", type=Path, default=Path("training/checkpoints/bc-nav-flat"),
+    parser.add_argument("--run", type=Path, default=Path("training/checkpoints/dual-nav-flat"),
                         help="SB3 run folder or .zip (default: the committed run of the bundled nav-flat policy)")
     parser.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: bundled nav-flat)")
     parser.add_argument("--calls", type=int, default=5000)

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python benchmarks/bench_train.py [--steps N] [--envs K] [--roun
 
 Interleaved in one run, ``R`` rounds of each (machines are shared and noisy, so only the
 ratios measured side by side mean anything), all on the same ``SubprocVecEnv`` of ``K``
-``nav-flat`` environments with the bundled policy's ``context`` observation (or ``--observation``),
+``nav-flat`` environments with the bundled policy's ``dual`` observation (or ``--observation``),
 over designs that can tumble:
 
 * ``bare``: ``N`` vectorised steps with random actions (the physics and the pipes alone);
@@ -39,8 +39,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=4096, help="environment steps per measurement")
     parser.add_argument("--envs", type=int, default=4, help="environments (the bundled runs used 4 on 2 cores)")
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--observation", choices=("context", "memory", "residual", "dual"), default="context",
-                        help="policy input (default context, the bundled navigation policies')")
+    parser.add_argument("--observation", choices=("context", "memory", "residual", "dual"), default="dual",
+                        help="policy input (default dual, the bundled navigation policies')")
     args = parser.parse_args()
     config = TrainConfig(task="nav-flat", observation=args.observation, tumbling_designs_only=True, n_envs=args.envs,
                          net_arch=[256, 256], n_steps=max(args.steps // args.envs, 1), batch_size=512, n_epochs=5,
