@@ -99,6 +99,7 @@ class _World:
         self.dt = 1.0 / env.physics_hz
         self.pose_every = max(1, round(env.physics_hz / pose_rate))
         self.placed = False
+        self.command = (0.0, 0.0)  #: the legs' commands now (right, left)
         self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
         self.seq, self.sim_time, self.substeps = 0, 0.0, 0
         self.dropped = 0  #: substeps skipped because the world fell behind real time
@@ -113,6 +114,8 @@ class _World:
         reply = _control(self.env, data, seed, self.uno, self.publish)
         if reply.pop("placed", False):
             self.placed, self.wall0, self.substeps, self.sim_time = True, time.monotonic(), 0, 0.0
+            self.command = (0.0, 0.0)
+            print(f"placed: {data.decode(errors='replace')}", file=sys.stderr, flush=True)
         quit_now = bool(reply.pop("quit", False))
         ctl.sendto(json.dumps(reply).encode(), source)
         return quit_now
@@ -136,8 +139,12 @@ class _World:
             return False
         self._track_emulator()
         right_us, left_us = self.uno.widths()
-        self.env.set_leg_commands(pulse_to_command(right_us, MOUNTING["right"]),
-                                  pulse_to_command(left_us, MOUNTING["left"]))
+        command = (pulse_to_command(right_us, MOUNTING["right"]), pulse_to_command(left_us, MOUNTING["left"]))
+        if command != self.command:  # the world's log: when the legs changed, to replay a trial exactly
+            self.command = command
+            print(f"legs {command[0]:+.4f} {command[1]:+.4f} from substep {self.substeps}", file=sys.stderr,
+                  flush=True)
+        self.env.set_leg_commands(*command)
         behind = due - self.substeps
         self.late += max(0, min(behind, 24) - LATE_SUBSTEPS)
         for _ in range(min(behind, 24)):

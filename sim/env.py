@@ -407,6 +407,14 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         """The robot's PyBullet body id in :attr:`client_id` (valid after :meth:`reset`)."""
         return self._robot
 
+    def observation(self) -> np.ndarray:
+        """The observation of the state now (what :meth:`step` returns at a step's end);
+        for callers that drive the legs with :meth:`advance`."""
+        if self._scene is None:
+            raise SimError("call reset() before observation()")
+        position, _, orientation = self._state()
+        return self._observation(position, orientation)
+
     def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, ...]]:
         """World-frame base position (m) and orientation quaternion ``(x, y, z, w)``."""
         position, _, orientation = self._state()

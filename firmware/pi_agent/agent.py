@@ -141,6 +141,8 @@ class SerialLink:
         self.drops: collections.Counter[str] = collections.Counter()  #: serial frames not used, by reason
         self.jumped_at: int | None = None  #: first seq sent after the last OLD_SEQUENCE jump
         self.last_probe = -1e9
+        self.last_speeds: float | None = None  #: when SET_SPEEDS was last written
+        self.speeds_gap_max = 0.0  #: s, the longest the Arduino went without SET_SPEEDS from us
 
     @property
     def ready(self) -> bool:
@@ -200,6 +202,7 @@ class SerialLink:
             pass
         self.port = None
         self.epoch = None
+        self.last_speeds = None  # a gap across a reconnect is not the Pi being slow
         self.reconnects += 1
         self.next_attempt = now + self.backoff
         self.backoff = min(self.backoff * 2, BACKOFF_MAX)
@@ -259,7 +262,12 @@ class SerialLink:
         return True
 
     def send_speeds(self, right: int, left: int, now: float) -> bool:
-        return self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left), now)
+        sent = self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left), now)
+        if sent:
+            if self.last_speeds is not None:  # a starved Pi shows here before its Arduino's watchdog trips
+                self.speeds_gap_max = max(self.speeds_gap_max, now - self.last_speeds)
+            self.last_speeds = now
+        return sent
 
     def ping(self, now: float) -> None:
         self.ping_token = (self.ping_token + 1) & 0xFFFFFFFF
@@ -280,6 +288,7 @@ class SerialLink:
             "serial_drops": {**{k.name: v for k, v in self.decoder.errors.items() if v and k != P.ErrorCode.OK},
                              **self.drops},
             "firmware_status": asdict(self.status) if self.status else None,
+            "speeds_gap_max_ms": round(1e3 * self.speeds_gap_max, 1),
         }
 
 
@@ -344,10 +353,17 @@ class Agent:
             return
         self.accepted += 1
         self.last_valid = now
+        self._act(d, source, now)
+
+    def _act(self, d: P.Datagram, source: tuple[str, int], now: float) -> None:
+        """An authentic, fresh datagram from the host (liveness already refreshed)."""
         if d.type == P.UdpType.COMMAND:
+            command = P.unpack_command(d.payload)
+            if self.pending is None and command == self.command:
+                return  # the command in force, repeated: a keepalive, which must not delay the next change
             if self.pending is not None:
                 self._drop(P.DropReason.RATE_LIMITED, d.type)  # superseded before it acted
-            self.pending = P.unpack_command(d.payload)
+            self.pending = command
         elif d.type == P.UdpType.STOP:
             self.pending = None
             if self.command == (0, 0):

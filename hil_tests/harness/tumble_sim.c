@@ -19,13 +19,20 @@
  * pending input), "reset" (reset the AVR now), "quit".
  *
  * The simulation is paced to the wall clock by default (real-time peers: the agent's
- * watchdogs); --unpaced runs as fast as it can (about 9.6x real time).
+ * watchdogs); --unpaced runs as fast as it can (about 9.6x real time). Paced, a stall of
+ * the harness itself (a starved machine) is made up at once only up to 50 ms; the rest is
+ * made up at 1.5x real time. Racing through a long stall would squeeze the agent's 100 ms
+ * keepalives into a few simulated ms each and trip the firmware's 250 ms watchdog, which
+ * no real Uno would see; this way a keepalive gap of 100 ms real is at most 1.5 x 100 +
+ * 50 = 200 ms simulated. After a long stall the emulated clock trails the wall clock for
+ * a while (the twin reports the drift).
  *
  * The UART bridge is our own, run from the simulation loop (no thread): simavr 1.6's
  * uart_pty part stalls for good when its 512-byte FIFO fills (its thread then never
  * moves the rest of what it read into the FIFO until the AVR transmits something).
  */
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <poll.h>
 #include <stdio.h>
@@ -222,6 +229,7 @@ int main(int argc, char **argv) {
   fflush(stdout);
 
   const double t0 = wall_seconds();
+  double last_wall = t0, credit = 0.0;  /* credit: the simulated seconds the pacing allows by now */
   avr_cycle_count_t next_check = 0;
   for (;;) {
     const int state = avr_run(avr);
@@ -240,8 +248,19 @@ int main(int argc, char **argv) {
       do_reset();
     }
     if (paced) {
-      const double ahead = (double)now / 16e6 - (wall_seconds() - t0);
-      if (ahead > 0.0005) usleep((useconds_t)(ahead * 1e6));
+      const double emulated = (double)now / 16e6;
+      for (;;) {
+        const double wall = wall_seconds();
+        const double dt = wall - last_wall;
+        last_wall = wall;
+        /* a stall is credited up to 50 ms (we check every simulated ms); behind real time,
+         * run at 1.5x to catch up the rest */
+        const double rate = emulated < wall - t0 - 0.001 ? 1.5 : 1.0;
+        credit = fmin(credit + fmin(dt * rate, 0.05), wall - t0);
+        const double ahead = emulated - credit;
+        if (ahead <= 0.0005) break;
+        usleep((useconds_t)(ahead / rate * 1e6));
+      }
     }
   }
   fflush(stdout);

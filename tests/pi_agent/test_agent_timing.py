@@ -65,3 +65,36 @@ def test_that_each_valid_datagram_restarts_the_host_timer(held: tuple[Agent, Clo
         clock.now += 0.8
         agent.step(timeout=0)
         assert agent.command == (1, 0) and agent.host_timeouts == 0
+
+
+def test_that_a_keepalive_does_not_delay_the_next_command(held: tuple[Agent, Clock]) -> None:
+    """The host repeats its command every 0.2 s; a repeat that took the 100 ms slot held
+    the next decision back by up to 100 ms (measured in the digital twin: the first command
+    of each trial, after a keepalive of the stop, acted 96-254 ms late)."""
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 0, 0), HOST, clock.now)  # the stop in force, repeated
+    agent.step(timeout=0)
+    clock.now += 0.03
+    agent.handle_datagram(command(agent, 2, 1, -1), HOST, clock.now)  # the first decision, 30 ms later
+    agent.step(timeout=0)
+    assert agent.command == (1, -1)
+    clock.now += 0.95
+    agent.handle_datagram(command(agent, 3, 1, -1), HOST, clock.now)  # keepalive
+    agent.step(timeout=0)
+    clock.now += 0.05
+    agent.handle_datagram(command(agent, 4, -1, -1), HOST, clock.now)  # the next decision
+    agent.step(timeout=0)
+    assert agent.command == (-1, -1) and agent.rate_limited["COMMAND"] == 0
+
+
+def test_that_changes_still_act_at_most_every_100_ms(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    start = clock.now
+    agent.handle_datagram(command(agent, 2, -1, -1), HOST, clock.now)
+    agent.step(timeout=0)
+    assert agent.command == (1, 1)  # waits for its slot
+    clock.now = start + 0.1
+    agent.step(timeout=0)
+    assert agent.command == (-1, -1)

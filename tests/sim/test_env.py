@@ -237,3 +237,19 @@ def test_that_naming_the_module_in_the_id_registers_the_tasks() -> None:
     code = "import gymnasium as gym; env = gym.make('tumblebot.sim:tumblebot/NavFlat-v0'); print(env.spec.id)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120).stdout
     assert out.strip() == "tumblebot/NavFlat-v0"
+
+
+def test_that_observation_is_what_step_returned_and_follows_advance() -> None:
+    env = TumblerEnv(task="nav-flat")
+    try:
+        with pytest.raises(SimError, match="reset"):
+            env.observation()
+        env.reset(seed=3)
+        obs, *_ = env.step(np.array([2, 0]))
+        assert np.array_equal(env.observation(), obs)
+        env.set_leg_commands(-1.0, 1.0)
+        env.advance(120)
+        moved = env.observation()
+        assert list(moved[OBS_INDEX["cmd_right"]:]) == [-1.0, 1.0] and not np.array_equal(moved[:3], obs[:3])
+    finally:
+        env.close()
