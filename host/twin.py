@@ -142,8 +142,8 @@ class _World:
         command = (pulse_to_command(right_us, MOUNTING["right"]), pulse_to_command(left_us, MOUNTING["left"]))
         if command != self.command:  # the world's log: when the legs changed, to replay a trial exactly
             self.command = command
-            print(f"legs {command[0]:+.4f} {command[1]:+.4f} from substep {self.substeps}", file=sys.stderr,
-                  flush=True)
+            print(f"legs {command[0]!r} {command[1]!r} from substep {self.substeps}", file=sys.stderr,
+                  flush=True)  # every digit: a replay that rounds the speeds drifts apart (chaos)
         self.env.set_leg_commands(*command)
         behind = due - self.substeps
         self.late += max(0, min(behind, 24) - LATE_SUBSTEPS)

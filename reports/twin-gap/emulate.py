@@ -36,7 +36,7 @@ XI3 = Design(0.292, 0.129, 0.098, 0.136)
 
 
 def emulated_episode(world: TumblerEnv, actor: Actor, seed: int, options: dict[str, object], offset: int,
-                     latency: int) -> float:
+                     latency: int, first_latency: int | None = None) -> float:
     """Final distance to the setpoint with the twin's actuation schedule (substeps)."""
     world.reset(seed=seed, options=options)
     actor.reset(seed, world.design.as_tuple())
@@ -44,9 +44,10 @@ def emulated_episode(world: TumblerEnv, actor: Actor, seed: int, options: dict[s
     world.advance(offset)
     for step in range(world.episode_steps):
         action = np.asarray(actor.act(world.observation(), step)).reshape(-1) - 1.0
-        world.advance(latency)
+        late = first_latency if step == 0 and first_latency is not None else latency
+        world.advance(late)
         world.set_leg_commands(float(action[0]), float(action[1]))
-        world.advance(world.substeps - latency)
+        world.advance(world.substeps - late)
     position, _ = world.base_pose()
     return math.hypot(position[0], position[1])
 
@@ -62,7 +63,18 @@ def main() -> None:
     parser.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: the bundled nav-flat)")
     parser.add_argument("--episodes", type=int, default=300)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--first-late", metavar="LO,HI", default=None,
+                        help="the first decision lands LO-HI ms late (the twin before 2026-12-02: 100,250)")
     args = parser.parse_args()
+    first_late: tuple[int, int] | None = None
+    if args.first_late is not None:
+        try:
+            lo, hi = (round(float(v) * 240 / 1000) for v in args.first_late.split(","))
+        except ValueError:
+            parser.error("--first-late must be LO,HI in ms, e.g. 100,250")
+        if not 0 <= lo <= hi < 240:
+            parser.error("--first-late must be LO,HI with 0 <= LO <= HI < 1000 ms")
+        first_late = (lo, hi)
     policy = args.policy or bundled_policy("nav-flat")
     actor = make_actor("onnx", str(policy), "nav-flat")
     world = TumblerEnv(task="nav-flat", design=XI3, randomization=Randomization(design=False, latency=(0.0, 0.0)))
@@ -77,14 +89,16 @@ def main() -> None:
             options: dict[str, object] = {"start_xy": (1.5 * math.cos(bearing), 1.5 * math.sin(bearing)),
                                           "start_yaw": yaw}
             seed = 10_000 * args.seed + i
-            emulated.append(emulated_episode(world, actor, seed, options, int(rng.integers(0, world.substeps)),
-                                             int(rng.integers(0, 6))))
+            offset, latency = int(rng.integers(0, world.substeps)), int(rng.integers(0, 6))
+            first = int(rng.integers(first_late[0], first_late[1] + 1)) if first_late else None
+            emulated.append(emulated_episode(world, actor, seed, options, offset, latency, first))
             final = run_episode(env, actor, seed, options=options).final_position
             stepped.append(math.hypot(final[0], final[1]))
     finally:
         world.close()
         env.close()
-    print(f"{policy.name}, ξ = 3 robot, {args.episodes} starts on the 1.5 m circle (seed {args.seed}), "
+    late = f", first decision {args.first_late} ms late" if first_late else ""
+    print(f"{policy.name}, ξ = 3 robot, {args.episodes} starts on the 1.5 m circle (seed {args.seed}){late}, "
           f"{time.strftime('%Y-%m-%d')}, {time.monotonic() - started:.0f} s")
     print(summary("emulated", emulated))
     print(summary("step()", stepped))
