@@ -52,7 +52,8 @@ def test_that_three_navigation_trials_through_the_twin_agree_with_pure_simulatio
     in the tail (seed 0's, for the dual policy: p = 0.005 and 0.019 in two sets) would fail
     both. A starved agent sending no telemetry for 1.5 s trips the host's safety stop,
     which aborts the trial as agent_lost and redoes it (seen on 2 cores under two busy
-    loops); that is the product working, so only other aborts fail the test. A real frame, servo-direction, timing or link bug fails both sets
+    loops); that is the product working, so only other aborts fail the test. A real
+    frame, servo-direction, timing or link bug fails both sets
     (``tests/host/test_twin_check.py`` shows the check catches each of the first three)."""
     verdicts = []
     for attempt in range(2):  # the second set with another seed: the world's motor noise is the
