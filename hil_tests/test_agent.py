@@ -186,12 +186,14 @@ class Chain:
         self.config.write_text(f'serial_port = "{self.device}"\nbind_address = "127.0.0.1"\nbind_port = {self.port}\n'
                                f'allowed_host = "127.0.0.1"\nkey_file = "{key_file}"\n')
         self.agent: subprocess.Popen[str] | None = None
+        self.log = agent_log(self.device)  # a file, not a pipe: nobody reading it can never block the agent
         self.host = Host(self.port)
         self.start_agent()
 
     def start_agent(self) -> None:
-        self.agent = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(self.config)],
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        with self.log.open("a") as log:
+            self.agent = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config",
+                                           str(self.config)], stdout=subprocess.DEVNULL, stderr=log, text=True)
         self.host.keys = None
         deadline = time.monotonic() + 20
         while True:  # the agent is up and has heard the firmware
@@ -213,6 +215,13 @@ class Chain:
         if self.tap is not None:
             self.tap.close()
         self.uno.close()
+        if self.log.is_file():  # pytest shows it with a failure's report
+            print(f"--- the agent's log ({self.log}) ---\n{self.log.read_text()[-4000:]}")
+
+
+def agent_log(device: Path) -> Path:
+    """Where a chain's agent logs: beside its serial device link, in the test's folder."""
+    return device.parent / "agent.log"
 
 
 @pytest.fixture
@@ -292,31 +301,30 @@ def test_that_too_frequent_commands_act_at_10_hz_with_the_latest_winning(chain) 
     assert host.telemetry()["rate_limited"]["COMMAND"] == 1
 
 
-def wait_for_log(agent: subprocess.Popen[str], text: str, timeout: float = WAIT) -> str:
-    """The agent's first log line from now on containing ``text`` (read from its stderr)."""
-    assert agent.stderr is not None
-    fd, seen = agent.stderr.fileno(), b""
+def wait_for_log(log: Path, text: str, since: int, timeout: float = WAIT) -> str:
+    """The first line of the agent's log after byte ``since`` containing ``text``."""
+    start = since
     deadline = time.monotonic() + timeout
-    while (left := deadline - time.monotonic()) > 0:
-        if select.select([fd], [], [], left)[0]:
-            chunk = os.read(fd, 4096)
-            if not chunk:
-                break
-            seen += chunk
-            for line in seen.decode(errors="replace").splitlines():
+    while time.monotonic() < deadline:
+        with log.open("rb") as fh:
+            fh.seek(start)
+            for line in fh.read().decode(errors="replace").splitlines():
                 if text in line:
                     return line
-    raise AssertionError(f"the agent did not log {text!r} within {timeout} s: {seen[-500:]!r}")
+        time.sleep(0.02)
+    raise AssertionError(f"the agent did not log {text!r} within {timeout} s")
 
 
 def test_that_losing_the_host_for_a_second_stops_the_robot(chain) -> None:  # type: ignore[no-untyped-def]
     """The robot stops with no further datagram, and it is the agent's host timer that
     stops it (tests/pi_agent/test_agent_timing.py holds that timer to one second on a
     test clock; benchmarks/bench_link.py times the stop on the wall clock)."""
-    uno, host, agent, _ = chain
+    uno, host, _, device = chain
+    log = agent_log(device)
+    since = log.stat().st_size
     host.command(1, 1)
     uno.wait_for(2000.5, 1000.5, tolerance=1.0)
-    wait_for_log(agent, "no valid datagram from the host")
+    wait_for_log(log, "no valid datagram from the host", since)
     uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
     telemetry = host.telemetry()
     assert telemetry["host_timeouts"] == 1 and telemetry["command"] == [0, 0]
@@ -368,7 +376,7 @@ def test_that_100000_random_and_mutated_datagrams_neither_crash_nor_actuate(chai
         host.send(wire)
         if i % batch == batch - 1:
             host.telemetry()
-    assert agent.poll() is None, agent.stderr.read() if agent.stderr else ""
+    assert agent.poll() is None, "the agent died (its log is printed below)"
     telemetry = host.telemetry()
     assert telemetry["command"] == [0, 0]
     assert drops_but_rate_limited(telemetry) - before == 100_000
