@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from tumblebot.host.emulator import WAIT, EmulatedUno
+from tumblebot.host.emulator import WAIT, EmulatedUno, PulseEvent
 from tumblebot.pi_agent import protocol as P
 
 KEY = bytes(range(32))
@@ -224,6 +224,22 @@ def agent_log(device: Path) -> Path:
     return device.parent / "agent.log"
 
 
+def drive(host: Host, uno: EmulatedUno, command: tuple[int, int], widths: tuple[float, float]) -> PulseEvent:
+    """Send ``command`` every 0.2 s, as the host controller does, until the pins show
+    ``widths``; returns the pulse event at which they did. One datagram is not enough on a
+    starved machine: the agent keeps a command for a second without a valid datagram, and
+    after a (re)start or a stray READY it may take that long to hear the firmware's epoch."""
+    deadline = time.monotonic() + WAIT
+    while True:
+        host.command(*command)
+        try:
+            return uno.wait_for(*widths, timeout=0.2, tolerance=1.0)
+        except TimeoutError:
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"command {command} did not reach the pins as {widths} within {WAIT} s "
+                                   f"(pins: {uno.widths()})") from None
+
+
 @pytest.fixture
 def chain(tmp_path: Path) -> Iterator[tuple[EmulatedUno, Host, subprocess.Popen[str], Path]]:
     c = Chain(tmp_path)
@@ -251,8 +267,7 @@ def test_that_a_command_from_the_host_moves_the_servos_and_then_keeps_them_movin
     the agent kept it (the emulator never runs faster than 1.25x real time, so a 200 ms
     silence is at most 250 simulated ms)."""
     uno, host, _, _ = chain
-    host.command(1, 1)
-    moving = uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    moving = drive(host, uno, (1, 1), (2000.5, 1000.5))
     for _ in range(8):  # the host's own resends, as the controller sends them
         time.sleep(0.1)
         host.command(1, 1)
@@ -270,9 +285,8 @@ def test_that_forged_replayed_and_foreign_datagrams_never_act(chain) -> None:  #
     host.send(host.datagram(P.UdpType.COMMAND, P.command_payload(1, 1), key=os.urandom(32)))  # forged
     assert host.telemetry()["drops"]["unauthenticated"] == 1
     wire = host.command(-1, -1)
-    uno.wait_for(1000.5, 2000.5, tolerance=1.0)
-    host.command(0, 0)
-    uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
+    drive(host, uno, (-1, -1), (1000.5, 2000.5))
+    drive(host, uno, (0, 0), (NEUTRAL, NEUTRAL))
     mark = time.monotonic()
     host.send(wire)  # replay of the (-1, -1) command
     assert host.telemetry()["drops"]["replayed"] == 1
@@ -322,8 +336,7 @@ def test_that_losing_the_host_for_a_second_stops_the_robot(chain) -> None:  # ty
     uno, host, _, device = chain
     log = agent_log(device)
     since = log.stat().st_size
-    host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    drive(host, uno, (1, 1), (2000.5, 1000.5))
     wait_for_log(log, "no valid datagram from the host", since)
     uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
     telemetry = host.telemetry()
@@ -345,8 +358,7 @@ def test_that_a_vanished_serial_device_is_detected_and_the_agent_reconnects(chai
         while not host.telemetry()["serial_connected"]:
             assert time.monotonic() < deadline, "agent did not reconnect"
             time.sleep(0.1)
-        host.command(1, 0)
-        fresh.wait_for(2000.5, NEUTRAL, tolerance=1.0)
+        drive(host, fresh, (1, 0), (2000.5, NEUTRAL))
     finally:
         fresh.close()
 
@@ -392,9 +404,8 @@ def test_that_commands_captured_before_an_agent_restart_never_act_after_it(tmp_p
     c = Chain(tmp_path)
     try:
         captured = [c.host.command(1, 1) for _ in range(10)]
-        c.uno.wait_for(2000.5, 1000.5, tolerance=1.0)
-        c.host.command(0, 0)
-        c.uno.wait_for(NEUTRAL, NEUTRAL, tolerance=1.0)
+        drive(c.host, c.uno, (1, 1), (2000.5, 1000.5))
+        drive(c.host, c.uno, (0, 0), (NEUTRAL, NEUTRAL))
         c.stop_agent()
         c.start_agent()  # a Pi reboot, or Restart=always after a crash: a new session
         start = time.monotonic()
@@ -404,8 +415,7 @@ def test_that_commands_captured_before_an_agent_restart_never_act_after_it(tmp_p
         time.sleep(0.4)
         assert {round(e.width) for e in c.uno.events_since(start)} <= {1500, 1501}
         assert c.host.telemetry()["drops"]["unauthenticated"] == 10
-        c.host.command(1, 0)  # the real host, re-handshaken, still drives the robot
-        c.uno.wait_for(2000.5, NEUTRAL, tolerance=1.0)
+        drive(c.host, c.uno, (1, 0), (2000.5, NEUTRAL))  # the real host, re-handshaken, still drives the robot
     finally:
         c.close()
 
@@ -415,8 +425,7 @@ def test_that_a_reflected_telemetry_datagram_does_not_lock_the_host_out(chain) -
     host.telemetry()
     host.send(host.last_telemetry_wire)  # the agent's own reply, sent back to it
     time.sleep(0.1)
-    host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    drive(host, uno, (1, 1), (2000.5, 1000.5))
     assert host.telemetry()["drops"]["malformed"] == 1
 
 
@@ -429,8 +438,7 @@ def test_that_an_unknown_error_code_from_the_serial_side_does_not_kill_the_agent
         assert time.monotonic() < deadline, telemetry["firmware_errors"]
         time.sleep(0.05)
     assert tapped.agent is not None and tapped.agent.poll() is None
-    tapped.host.command(1, 1)
-    tapped.uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    drive(tapped.host, tapped.uno, (1, 1), (2000.5, 1000.5))
 
 
 def test_that_commands_at_50_hz_never_make_the_agent_declare_the_link_lost(chain) -> None:  # type: ignore[no-untyped-def]
@@ -459,16 +467,7 @@ def test_that_a_stray_ready_with_another_epoch_does_not_lock_commands_out(tapped
     epoch = host.telemetry()["epoch"]
     tapped.tap.to_agent(_frame((epoch + 7) & 0xFFFF, 0, P.MsgType.READY, P.Ready(1, 0, 1, 0).pack()))  # type: ignore[union-attr]
     time.sleep(0.05)
-    # resent every 0.2 s as the host controller does: on a loaded machine the agent takes up
-    # to a second to hear the real epoch again, longer than it keeps a command without one
-    deadline = time.monotonic() + WAIT  # (it was a 20 s lock-out)
-    while True:
-        host.command(-1, -1)
-        try:
-            tapped.uno.wait_for(1000.5, 2000.5, timeout=0.2, tolerance=1.0)
-            break
-        except TimeoutError:
-            assert time.monotonic() < deadline, f"commands still locked out after {WAIT} s"
+    drive(host, tapped.uno, (-1, -1), (1000.5, 2000.5))  # within WAIT (it was a 20 s lock-out)
     assert host.telemetry()["epoch"] == epoch
 
 
@@ -481,8 +480,7 @@ def test_that_an_agent_restarted_on_a_port_that_does_not_reset_the_uno_resynchro
             time.sleep(0.05)
         c.stop_agent()
         c.start_agent()  # seq restarts while the firmware (not reset by a pty) remembers its last one
-        c.host.command(-1, 0)
-        c.uno.wait_for(1000.5, NEUTRAL, tolerance=1.0)
+        drive(c.host, c.uno, (-1, 0), (1000.5, NEUTRAL))
     finally:
         c.close()
 
@@ -496,8 +494,7 @@ def test_that_a_sender_id_flood_keeps_the_agent_state_bounded(chain) -> None:  #
     telemetry = host.telemetry()
     assert telemetry["senders"] <= P.MAX_SENDERS and telemetry["senders_evicted"] >= 40_000 - P.MAX_SENDERS
     assert agent.poll() is None
-    host.command(1, 1)
-    uno.wait_for(2000.5, 1000.5, tolerance=1.0)
+    drive(host, uno, (1, 1), (2000.5, 1000.5))
 
 
 def test_that_a_stop_flood_does_not_flood_the_serial_link(chain) -> None:  # type: ignore[no-untyped-def]
@@ -553,5 +550,4 @@ def test_that_random_and_mutated_serial_frames_never_kill_the_agent_nor_move_the
     time.sleep(0.5)
     assert tapped.agent is not None and tapped.agent.poll() is None
     assert {round(e.width) for e in tapped.uno.events_since(start)} <= {1500, 1501}  # nobody commanded motion
-    host.command(0, 1)
-    tapped.uno.wait_for(NEUTRAL, 1000.5, tolerance=1.0)
+    drive(host, tapped.uno, (0, 1), (NEUTRAL, 1000.5))
