@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -25,8 +26,6 @@ class Link:
         self.received: list[P.Frame] = []
 
     def read(self, seconds: float) -> list[P.Frame]:
-        import time
-
         frames: list[P.Frame] = []
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -34,29 +33,28 @@ class Link:
         self.received += frames
         return frames
 
-    def wait_for(self, mtype: P.MsgType, timeout: float = WAIT) -> P.Frame:
-        """The first frame of this type received so far or within ``timeout`` seconds."""
-        import time
-
+    def _first(self, mtype: P.MsgType, after: int, timeout: float) -> P.Frame:
+        """The first frame of this type among those received after the first ``after``,
+        reading for up to ``timeout`` seconds."""
         end = time.monotonic() + timeout
         while True:
-            for f in self.received:
+            for f in self.received[after:]:
                 if f.type == mtype:
                     return f
+            after = len(self.received)
             if time.monotonic() > end:
                 raise TimeoutError(f"no {mtype.name} from the firmware within {timeout} s")
-            self.read(0.05)
+            self.read(0.02)
+
+    def wait_for(self, mtype: P.MsgType, timeout: float = WAIT) -> P.Frame:
+        """The first frame of this type received so far or within ``timeout`` seconds."""
+        return self._first(mtype, 0, timeout)
 
     def wait_ready(self, timeout: float = WAIT) -> P.Frame:
-        import time
-
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            for f in self.read(0.05):
-                if f.type == P.MsgType.READY:
-                    self.epoch = f.epoch
-                    return f
-        raise TimeoutError(f"no READY from the firmware within {timeout} s")
+        """The next READY (a boot), whose epoch the link then uses."""
+        ready = self._first(P.MsgType.READY, len(self.received), timeout)
+        self.epoch = ready.epoch
+        return ready
 
     def send(self, mtype: P.MsgType, payload: bytes = b"", seq: int | None = None, epoch: int | None = None) -> int:
         if seq is None:
@@ -72,15 +70,9 @@ class Link:
         return self.send(P.MsgType.SET_SPEEDS, P.set_speeds_payload(right, left))
 
     def status(self, timeout: float = WAIT) -> P.Status:
-        import time
-
+        asked = len(self.received)
         self.send(P.MsgType.GET_STATUS)
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            for f in self.read(0.02):
-                if f.type == P.MsgType.STATUS:
-                    return P.Status.unpack(f.payload)
-        raise TimeoutError("no STATUS reply")
+        return P.Status.unpack(self._first(P.MsgType.STATUS, asked, timeout).payload)
 
 
 @pytest.fixture
