@@ -78,7 +78,7 @@ def main() -> None:
             time.sleep(0.05)
         epoch, to_serial, to_pulse = int(time.time()), [], []
         keys = P.LinkKeys.derive(KEY, agent.session)  # in-process: the session needs no HELLO here
-        states = [((1, 1), (2000.5, 1000.5)), ((0, 0), (1500.5, 1500.5))]
+        states = [((1, 1), (2000.0, 1000.0)), ((0, 0), (1500.0, 1500.0))]
         for i in range(args.commands):
             (right, left), (w_right, w_left) = states[i % 2]
             wire = P.encode_datagram(P.Datagram(P.UdpType.COMMAND, 7, epoch, i + 1, P.command_payload(right, left)),
@@ -99,8 +99,8 @@ def main() -> None:
             time.sleep(0.2)  # past the rate limit's slot
             sent = time.monotonic()
             sock.sendto(wire, agent.address)
-            uno.wait_for(2000.5, 1000.5, tolerance=1.0)
-            to_stop.append(uno.wait_for(1500.5, 1500.5, tolerance=1.0).wall - sent)
+            uno.wait_for(2000.0, 1000.0, tolerance=1.0)
+            to_stop.append(uno.wait_for(1500.0, 1500.0, tolerance=1.0).wall - sent)
         stop.set()
         thread.join(timeout=2)
     print(f"robot link latency, {time.strftime('%Y-%m-%d')}, {platform.machine()}, {args.commands} commands, "

@@ -115,7 +115,7 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral(tmp_path: Path) ->
         deadline = time.monotonic() + 10
         while True:  # driving forward: right servo long pulses, the mirrored left one short
             right, left = control(stack, {"cmd": "status"})["widths"]
-            if right is not None and left is not None and abs(right - 2000.5) < 2 and abs(left - 1000.5) < 2:
+            if right is not None and left is not None and abs(right - 2000.0) < 2 and abs(left - 1000.0) < 2:
                 break
             assert time.monotonic() < deadline, (right, left)
             time.sleep(0.05)
@@ -124,7 +124,7 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral(tmp_path: Path) ->
         lost = time.monotonic()
         while True:
             widths = control(stack, {"cmd": "status"})["widths"]
-            if all(w is not None and abs(w - 1500.5) < 2 for w in widths):
+            if all(w is not None and abs(w - 1500.0) < 2 for w in widths):
                 break
             assert time.monotonic() - lost < 10.0, f"servos still at {widths} 10 s after the dropout"
             time.sleep(0.01)

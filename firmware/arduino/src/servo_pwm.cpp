@@ -11,6 +11,11 @@ namespace {
 constexpr uint16_t kTicksPerUs = 2;  // 16 MHz / 8
 constexpr uint8_t kClockBits = _BV(CS12) | _BV(CS11) | _BV(CS10);
 
+// The compare value for a pulse of ``us`` microseconds. In fast PWM the output is high from
+// BOTTOM through the compare match, OCR1x + 1 ticks, as TOP = ICR1 gives ICR1 + 1 ticks a
+// period: without the - 1 every pulse was half a microsecond long (1500.5 us for 1500).
+uint16_t compareTicks(uint16_t us) { return static_cast<uint16_t>(us * kTicksPerUs - 1); }
+
 volatile uint16_t pendingA = 0, pendingB = 0;
 volatile bool pending = false;
 uint16_t appliedA = 0, appliedB = 0;  // last values handed to the ISR
@@ -24,8 +29,8 @@ void begin(uint16_t rightUs, uint16_t leftUs) {
   // TOP and compare values before the clock starts (simavr derives the period when
   // TCCR1B is written, and a zero TOP there would run the timer at 8 cycles).
   ICR1 = static_cast<uint16_t>(tumble::kServoPeriodUs * kTicksPerUs - 1);
-  appliedA = static_cast<uint16_t>(rightUs * kTicksPerUs);
-  appliedB = static_cast<uint16_t>(leftUs * kTicksPerUs);
+  appliedA = compareTicks(rightUs);
+  appliedB = compareTicks(leftUs);
   OCR1A = appliedA;
   OCR1B = appliedB;
   TCCR1A = _BV(COM1A1) | _BV(COM1B1) | _BV(WGM11);  // non-inverting PWM on OC1A, OC1B
@@ -34,8 +39,8 @@ void begin(uint16_t rightUs, uint16_t leftUs) {
 }
 
 void write(uint16_t rightUs, uint16_t leftUs) {
-  const uint16_t a = static_cast<uint16_t>(rightUs * kTicksPerUs);
-  const uint16_t b = static_cast<uint16_t>(leftUs * kTicksPerUs);
+  const uint16_t a = compareTicks(rightUs);
+  const uint16_t b = compareTicks(leftUs);
   if (a == appliedA && b == appliedB) return;
   appliedA = a;
   appliedB = b;
