@@ -49,7 +49,8 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
     class _Startup(optuna.samplers.RandomSampler):
         def sample_independent(self, study: optuna.Study, trial: optuna.trial.FrozenTrial, param_name: str,
                                param_distribution: BaseDistribution) -> Any:
-            assert isinstance(param_distribution, FloatDistribution)
+            if not isinstance(param_distribution, FloatDistribution):  # every design parameter is a float range
+                raise TypeError(f"{param_name}: a {type(param_distribution).__name__}, not a FloatDistribution")
             return base.value(trial.number, param_name, param_distribution.low, param_distribution.high)
 
     salted = int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0])
