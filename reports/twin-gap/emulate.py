@@ -26,13 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.policy import bundled_policy
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.rollout import Actor, make_actor, run_episode
 
-XI3 = Design(0.292, 0.129, 0.098, 0.136)
+XI3 = Design(*XI3_ROBOT)
 
 
 def emulated_episode(world: TumblerEnv, actor: Actor, seed: int, options: dict[str, object], offset: int,

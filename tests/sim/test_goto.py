@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 from tumblebot.cli import main
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.evaluate import Controller, Servo, evaluate
 from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
 
-XI3 = Design(0.292, 0.129, 0.098, 0.136)
+XI3 = Design(*XI3_ROBOT)
 XI0 = Design(0.293, 0.117, 0.158, 0.218)
 
 

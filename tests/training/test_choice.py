@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tumblebot.cli import main
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.design import Design
 from tumblebot.sim.goto import GotoConfig
 from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
@@ -89,7 +90,7 @@ def test_that_the_teacher_follows_the_setting_the_choice_prefers() -> None:
 
 @pytest.mark.slow
 def test_that_the_sweep_pairs_both_settings_on_the_same_episodes() -> None:
-    design = Design(0.292, 0.129, 0.098, 0.136)
+    design = Design(*XI3_ROBOT)
     records = list(sweep([design], episodes=4, seed=0, workers=1))
     assert len(records) == 1 and records[0]["episodes"] == 4
     r = records[0]

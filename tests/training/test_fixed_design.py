@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+from tumblebot.defaults import XI3_ROBOT
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import make_env
 
-XI3 = [0.292, 0.129, 0.098, 0.136]
+XI3 = list(XI3_ROBOT)
 
 
 def test_that_a_fixed_design_is_the_body_of_every_training_episode() -> None:
