@@ -171,7 +171,11 @@ def test_that_a_killed_agent_is_reported_and_a_restarted_one_lets_the_set_contin
         assert host.returncode == 0, rest
     index = load_index(out)
     assert [t["trial"] for t in index["trials"]] == [0, 1]
-    assert [a["status"] for a in index["aborted"]] == ["agent_lost"]
+    # the kill aborts the first trial; a restarted agent starved of the CPU on a loaded machine
+    # can fall silent for the host's 1.5 s as well (seen once in a loaded CI run), which is
+    # another agent_lost and a redo, and never any other abort
+    statuses = [a["status"] for a in index["aborted"]]
+    assert index["aborted"][0]["trial"] == 0 and set(statuses) == {"agent_lost"}, (index["aborted"], rest)
 
 
 def test_that_kill_9_of_the_host_at_random_moments_loses_no_written_step(tmp_path: Path) -> None:
