@@ -317,11 +317,10 @@ def test_that_too_frequent_commands_act_at_10_hz_with_the_latest_winning(chain) 
 
 def wait_for_log(log: Path, text: str, since: int, timeout: float = WAIT) -> str:
     """The first line of the agent's log after byte ``since`` containing ``text``."""
-    start = since
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         with log.open("rb") as fh:
-            fh.seek(start)
+            fh.seek(since)
             for line in fh.read().decode(errors="replace").splitlines():
                 if text in line:
                     return line

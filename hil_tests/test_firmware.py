@@ -32,7 +32,7 @@ def test_that_set_speeds_reaches_the_pins_within_50_ms(uno: EmulatedUno, link: L
 
 def test_that_each_pulse_is_the_commanded_width_to_the_timer_tick(uno: EmulatedUno, link: Link) -> None:
     """Fast PWM holds a pin high for OCR1x + 1 timer ticks (0.5 µs each); the firmware once
-    left out the - 1 and made every pulse a tick long: 1500.5 µs for neutral."""
+    left out the - 1 and made every pulse a tick too long: 1500.5 µs for neutral."""
     assert uno.widths() == pytest.approx((NEUTRAL, NEUTRAL), abs=0.25)  # at boot
     for right, left in ((1, 1), (-1, 0), (0, -1)):
         link.speeds(right, left)

@@ -13,7 +13,7 @@ constexpr uint8_t kClockBits = _BV(CS12) | _BV(CS11) | _BV(CS10);
 
 // The compare value for a pulse of `us` microseconds. In fast PWM a pin is high from BOTTOM
 // through the compare match, OCR1x + 1 ticks (as ICR1 + 1 ticks make the period): without
-// the - 1 every pulse was one tick, half a microsecond, long (1500.5 us for 1500).
+// the - 1 every pulse was one tick (half a microsecond) too long: 1500.5 us for 1500.
 uint16_t compareTicks(uint16_t us) { return static_cast<uint16_t>(us * kTicksPerUs - 1); }
 
 volatile uint16_t pendingA = 0, pendingB = 0;
