@@ -9,6 +9,17 @@ valid datagram, the firmware after 250 ms without a frame from the agent).
 The robot is stopped, and the trial ends with the reason, when tracking is lost (no
 accepted pose for ``lost_after`` s), when the agent stops answering telemetry requests
 (``agent_timeout`` s), on Ctrl-C, and after the last decision.
+
+A trial also ends, and is never recorded as finished, when the agent's telemetry shows
+that the robot cannot have done what it was told (:meth:`TrialRunner.link_fault`):
+
+* ``serial_lost``: the agent has no serial link to the Arduino (the USB cable is out, or
+  the board does not answer). A trial does not start without one.
+* ``firmware_reboot``: the firmware's epoch changed mid-trial (the Uno reset: a brown-out,
+  a loose supply, a reflash).
+* ``no_ack``: a command has been in force for ``ack_timeout`` s but the firmware's status
+  reports other speeds (its watchdog holds the servos, or the frames never arrive), or
+  no status at all.
 """
 
 from __future__ import annotations
@@ -42,10 +53,13 @@ class _TrialState:
     fresh: Pose | None = None  #: the newest pose
     latencies: list[float] = field(default_factory=list)
     times: list[tuple[float, float | None, float]] = field(default_factory=list)
+    epoch: int | None = None  #: the firmware's epoch when the trial started
+    command_since: float = 0.0  #: when the command in force was first sent
 
     @classmethod
-    def starting(cls, now: float, config: ControllerConfig) -> _TrialState:
-        return cls(start=now, end=now + config.steps * config.period, next_decision=now)
+    def starting(cls, now: float, config: ControllerConfig, epoch: int | None = None) -> _TrialState:
+        return cls(start=now, end=now + config.steps * config.period, next_decision=now, epoch=epoch,
+                   command_since=now)
 
 
 class ControllerError(TumblebotError):
@@ -62,10 +76,13 @@ class ControllerConfig:
     telemetry_every: float = 0.25  #: s between telemetry requests
     max_speed: float = 3.0  #: m/s; faster pose jumps are outliers
     first_pose_timeout: float = 3.0  #: s to wait for tracking at the start
+    #: s a command may be in force before the firmware's status must show it (the agent asks
+    #: the Arduino for its status once a second)
+    ack_timeout: float = 2.5
 
     def __post_init__(self) -> None:
         for name in ("period", "keepalive", "lost_after", "agent_timeout", "telemetry_every", "max_speed",
-                     "first_pose_timeout"):
+                     "first_pose_timeout", "ack_timeout"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ControllerError(f"controller {name}={value!r} must be a positive number")
@@ -75,7 +92,8 @@ class ControllerConfig:
 
 @dataclass
 class TrialResult:
-    status: str  #: complete, mocap_lost, agent_lost, no_mocap, interrupted
+    #: complete, mocap_lost, agent_lost, no_mocap, serial_lost, firmware_reboot, no_ack, interrupted
+    status: str
     reason: str
     decisions: int
     final_position: tuple[float, float, float] | None = None
@@ -165,7 +183,7 @@ class TrialRunner:
             if result is not None:
                 return result
             self._event(log, "start", f"setpoint {self.setpoint}, heading {self.heading:.3f} rad")
-            state = _TrialState.starting(time.monotonic(), self.config)
+            state = _TrialState.starting(time.monotonic(), self.config, self.agent.last_telemetry.get("epoch"))
             while result is None:
                 result = self._tick(state, log, on_status)
             return result
@@ -209,6 +227,38 @@ class TrialRunner:
                 return TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
                                    f" did not answer within {cfg.agent_timeout:.1f} s", 0)
             self.pump(0.02, log)
+        fault = self.link_fault(self.agent.last_telemetry)
+        if fault is not None:
+            return TrialResult(*fault, 0)
+        return None
+
+    @staticmethod
+    def link_fault(body: dict[str, Any], epoch: int | None = None) -> tuple[str, str] | None:
+        """``(status, reason)`` if telemetry ``body`` says the robot cannot act on commands:
+        no serial link to the Arduino, or (given the trial's ``epoch``) a firmware reboot."""
+        if body.get("serial_connected") is not True:
+            return ("serial_lost", "the agent has no serial link to the Arduino (telemetry says serial_connected: "
+                    "false): check the USB cable between the Pi and the Uno, and the Uno's power")
+        now_epoch = body.get("epoch")
+        if epoch is not None and now_epoch != epoch:
+            return ("firmware_reboot", f"the firmware rebooted during the trial (epoch {epoch} became {now_epoch}): "
+                    "check the servo supply (a brown-out resets the Uno) and the USB cable")
+        return None
+
+    def _unacknowledged(self, body: dict[str, Any], state: _TrialState, now: float) -> tuple[str, str] | None:
+        """``("no_ack", reason)`` if the command in force for ``ack_timeout`` s is not what the
+        firmware reports running."""
+        held = now - state.command_since
+        if held < self.config.ack_timeout:
+            return None
+        status = body.get("firmware_status")
+        if not isinstance(status, dict):
+            return ("no_ack", f"the firmware has reported no status for {held:.1f} s of command {self.command}")
+        running = (status.get("right"), status.get("left"))
+        if running != self.command:
+            holding = " (its watchdog holds the servos stopped)" if int(status.get("flags") or 0) & 2 else ""
+            return ("no_ack", f"the firmware runs {running[0]}, {running[1]}{holding} but was commanded "
+                    f"{self.command[0]}, {self.command[1]} {held:.1f} s ago")
         return None
 
     def _tick(self, state: _TrialState, log: TrialLogWriter | BackgroundLog | None,
@@ -245,7 +295,10 @@ class TrialRunner:
             return None
         obs = self.observation(fresh)
         action = np.asarray(self.policy.act(obs)).reshape(-1)
-        self.command = (int(action[0]) - 1, int(action[1]) - 1)
+        command = (int(action[0]) - 1, int(action[1]) - 1)
+        if command != self.command:
+            state.command_since = now
+        self.command = command
         state.last_sent = self.agent.command(*self.command)
         latency = (state.last_sent - fresh.t) * 1e3
         state.latencies.append(latency)
@@ -280,6 +333,11 @@ class TrialRunner:
         for body in self.agent.poll():
             if log is not None:
                 log.write("/telemetry", body)
+            fault = self.link_fault(body, state.epoch) or self._unacknowledged(body, state, now)
+            if fault is not None:
+                stop_sent = self.stop_robot(log, fault[0])
+                return TrialResult(*fault, state.decisions, latencies_ms=state.latencies,
+                                   stop_latency=stop_sent - now)
         if self.agent.silent_for(now) > cfg.agent_timeout:
             stop_sent = self.stop_robot(log, "agent not answering")
             return TrialResult("agent_lost", f"no telemetry from the agent for {self.agent.silent_for(now):.1f} s",

@@ -177,6 +177,8 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
     logged message (:class:`~tumblebot.host.triallog.TrialLogWriter`), for a live view."""
     index = load_index(folder)
     done = {t["trial"] for t in index["trials"]}
+    if any(trial not in done for trial in range(plan.trials)):
+        check_link(controller, min(agent_wait, LINK_CHECK_WAIT))  # no trial starts on a link that cannot move the robot
     for trial in range(plan.trials):
         if trial in done:
             continue
@@ -220,7 +222,38 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
             out(f"  trial aborted ({result.status}): {result.reason}; the robot was stopped. The trial will be redone.")
             if result.status == "agent_lost":
                 _wait_for_agent(controller, agent_wait, out)
+            elif result.status in LINK_FAULTS:
+                out("waiting for the agent's serial link to the Arduino (check the USB cable and the servo supply)")
+                check_link(controller, agent_wait)
+                out("the Arduino answers again; continuing")
     return index
+
+
+LINK_CHECK_WAIT = 15.0  #: s a trial set waits at its start for the agent to report a live serial link
+LINK_FAULTS = ("serial_lost", "firmware_reboot", "no_ack")  #: aborts that say the robot could not act
+
+
+def check_link(controller: TrialRunner, timeout: float) -> dict[str, Any]:
+    """Wait until the agent answers with a live serial link to the Arduino; returns that
+    telemetry. Raises :class:`TrialError` (one line, saying which) when the agent does not
+    answer or its serial link stays down for ``timeout`` s."""
+    agent = controller.agent
+    deadline = time.monotonic() + timeout
+    body: dict[str, Any] | None = None
+    while time.monotonic() < deadline:
+        agent.request_telemetry()
+        t_end = min(deadline, time.monotonic() + 0.3)
+        while time.monotonic() < t_end:
+            for body in agent.poll():
+                if TrialRunner.link_fault(body) is None:
+                    return body
+            time.sleep(0.02)
+    where = f"{agent.address[0]}:{agent.address[1]}"
+    if body is None and not agent.last_telemetry:
+        raise TrialError(f"the agent at {where} did not answer within {timeout:.0f} s (is it running, with this key?)")
+    fault = TrialRunner.link_fault(body or agent.last_telemetry)
+    assert fault is not None
+    raise TrialError(f"no trial started: {fault[1]} (waited {timeout:.0f} s; run the same command to resume)")
 
 
 def _set_aside(folder: Path, index: dict[str, Any], trial: int, path: Path, status: str, reason: str) -> None:

@@ -1,5 +1,7 @@
-"""The controller against the real agent (in a thread, serial on pyserial's loop://) and a
-UDP pose stream: decisions, frames, and every way a trial stops the robot."""
+"""The controller against the real agent (in a thread) with the real firmware in simavr on
+its serial port, and a UDP pose stream: decisions, frames, and every way a trial stops the
+robot, including the link faults that mean the robot could not have moved (an unplugged
+USB cable, a firmware reboot, commands the firmware never ran)."""
 
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ import numpy as np
 import pytest
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.host.controller import ControllerConfig, TrialRunner
+from tumblebot.host.controller import ControllerConfig, TrialRunner, _TrialState
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import encode_pose_datagram, open_source
 from tumblebot.host.triallog import TrialLogWriter, read_trial
@@ -24,6 +27,7 @@ from tumblebot.sim.frames import yaw_quaternion
 from tumblebot.sim.policy import OnnxPolicy, bundled_policy
 
 KEY = bytes(range(32))
+pytestmark = pytest.mark.hil  # the lab's Arduino is the real firmware in simavr
 
 
 @dataclass
@@ -61,6 +65,7 @@ class Lab:
     source: object
     stop_agent: threading.Event
     agent_thread: threading.Thread
+    uno: EmulatedUno | None = None
 
     def controller(self, policy: object, **cfg: float) -> TrialRunner:
         config = ControllerConfig(**{"period": 0.1, "steps": 5, **cfg})  # type: ignore[arg-type]
@@ -71,26 +76,42 @@ class Lab:
         self.agent_thread.join()
 
 
-@pytest.fixture
-def lab() -> Iterator[Lab]:
+def _lab(serial_port: str | None) -> Iterator[Lab]:
+    """A lab whose agent talks to the firmware in simavr, or to ``serial_port`` (``loop://``:
+    an agent whose Arduino is unplugged)."""
+    uno = EmulatedUno() if serial_port is None else None
     source = open_source("udp://127.0.0.1:0?body=tumbler")
     publisher = Publisher(source.address)  # type: ignore[attr-defined]
     pub_thread = threading.Thread(target=publisher.run, daemon=True)
     pub_thread.start()
-    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=0,
-                              allowed_host="127.0.0.1"), KEY)
+    agent = Agent(AgentConfig(serial_port=uno.pty if uno else str(serial_port), bind_address="127.0.0.1",
+                              bind_port=0, allowed_host="127.0.0.1"), KEY)
     stop_agent = threading.Event()
     agent_thread = threading.Thread(target=agent.run, args=(stop_agent.is_set,), daemon=True)
     agent_thread.start()
     client = AgentClient(agent.address, KEY)
     try:
-        yield Lab(publisher, agent, client, source, stop_agent, agent_thread)
+        if uno is not None:
+            wait_until(lambda: agent.link.ready, "the agent to hear the firmware", timeout=30)
+        yield Lab(publisher, agent, client, source, stop_agent, agent_thread, uno)
     finally:
         publisher._stop.set()
         stop_agent.set()
         agent_thread.join(timeout=2)
         source.close()
         client.close()
+        if uno is not None:
+            uno.close()
+
+
+@pytest.fixture
+def lab() -> Iterator[Lab]:
+    yield from _lab(None)
+
+
+@pytest.fixture
+def unplugged_lab() -> Iterator[Lab]:
+    yield from _lab("loop://")
 
 
 def wait_until(condition: Callable[[], bool], what: str, timeout: float = 10.0) -> None:
@@ -221,7 +242,8 @@ def test_that_a_host_follows_an_agent_restart_to_its_new_session(lab: Lab) -> No
     first = lab.client.session
     port = lab.agent.address[1]
     lab.kill_agent()
-    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=port,
+    assert lab.uno is not None
+    agent = Agent(AgentConfig(serial_port=lab.uno.pty, bind_address="127.0.0.1", bind_port=port,
                               allowed_host="127.0.0.1"), KEY)
     stop = threading.Event()
     thread = threading.Thread(target=agent.run, args=(stop.is_set,), daemon=True)
@@ -248,3 +270,51 @@ def test_that_goto_drives_the_host_controller_and_starts_every_trial_afresh(lab:
     assert first.status == "complete" and goto.step == 5
     second = lab.controller(goto).run_trial()
     assert second.status == "complete" and goto.step == 5  # reset at the start of the trial, not carried over
+
+
+# --------------------------------------------------------------------- link faults
+def test_that_a_trial_with_the_arduino_unplugged_never_starts_and_says_why(unplugged_lab: Lab) -> None:
+    """The agent answers, but its serial port (loop://) has no firmware behind it: the
+    telemetry says serial_connected: false, and no decision is made."""
+    policy = Scripted([(2, 2)])
+    result = unplugged_lab.controller(policy).run_trial()
+    assert result.status == "serial_lost" and result.decisions == 0 and policy.seen == []
+    assert "USB cable" in result.reason
+
+
+def test_that_unplugging_the_arduino_mid_trial_aborts_the_trial(lab: Lab) -> None:
+    assert lab.uno is not None
+    uno = lab.uno
+    threading.Timer(0.5, uno.close).start()  # the USB cable falls out
+    result = lab.controller(Scripted([(2, 2)]), steps=200).run_trial()
+    assert result.status == "serial_lost" and 0 < result.decisions < 200
+
+
+def test_that_a_firmware_reboot_mid_trial_aborts_the_trial(lab: Lab) -> None:
+    assert lab.uno is not None
+    uno = lab.uno
+    threading.Timer(0.5, uno.reset).start()  # a brown-out resets the Uno
+    result = lab.controller(Scripted([(2, 2)]), steps=200).run_trial()
+    assert result.status in ("firmware_reboot", "no_ack", "serial_lost"), result
+    assert result.status == "firmware_reboot", result.reason
+
+
+def test_that_commands_the_firmware_does_not_run_abort_the_trial(unplugged_lab: Lab) -> None:
+    """The rule on its own: telemetry whose firmware status shows other speeds than the
+    command held for ack_timeout (the firmware's watchdog holding the servos) is a fault;
+    before ack_timeout, and when the status shows the command, it is not."""
+    runner = unplugged_lab.controller(Scripted([(2, 2)]), ack_timeout=1.0)
+    state = _TrialState.starting(100.0, runner.config, epoch=7)
+    runner.command = (1, 1)
+    status = {"right": 0, "left": 0, "flags": 3}
+    body = {"serial_connected": True, "epoch": 7, "firmware_status": status}
+    assert runner._unacknowledged(body, state, 100.5) is None
+    fault = runner._unacknowledged(body, state, 101.2)
+    assert fault is not None and fault[0] == "no_ack" and "watchdog" in fault[1]
+    assert runner._unacknowledged({**body, "firmware_status": {"right": 1, "left": 1, "flags": 1}},
+                                  state, 101.2) is None
+    missing = runner._unacknowledged({**body, "firmware_status": None}, state, 101.2)
+    assert missing is not None and "no status" in missing[1]
+    assert TrialRunner.link_fault(body, epoch=7) is None
+    reboot = TrialRunner.link_fault({**body, "epoch": 8}, epoch=7)
+    assert reboot is not None and reboot[0] == "firmware_reboot"

@@ -1,5 +1,6 @@
 """``tumblebot trial run`` / ``analyze`` as an operator uses them (mock mocap, the real agent
-as a process with its serial port on pyserial's loop://)."""
+as a process, with the real firmware in simavr on its serial port, or with nothing there:
+pyserial's loop://, an unplugged Arduino)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from tumblebot.host.emulator import EmulatedUno
 from tumblebot.host.link import AgentClient, load_host_key, new_key
 from tumblebot.host.trials import load_index
 from tumblebot.host.twin import free_port
@@ -22,13 +24,12 @@ def tb(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
                           timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
-@pytest.fixture
-def agent(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+def _agent(tmp_path: Path, serial_port: str) -> Iterator[tuple[str, Path]]:
     key = tmp_path / "agent.key"
     new_key(key)
     port = free_port()
     config = tmp_path / "agent.toml"
-    config.write_text(f'serial_port = "loop://"\nbind_address = "127.0.0.1"\nbind_port = {port}\n'
+    config.write_text(f'serial_port = "{serial_port}"\nbind_address = "127.0.0.1"\nbind_port = {port}\n'
                       f'allowed_host = "127.0.0.1"\nkey_file = "{key}"\n')
     proc = subprocess.Popen([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config", str(config)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -46,6 +47,19 @@ def agent(tmp_path: Path) -> Iterator[tuple[str, Path]]:
         proc.wait(timeout=5)
 
 
+@pytest.fixture
+def agent(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    """An agent process whose Arduino is the real firmware in simavr."""
+    with EmulatedUno() as uno:
+        yield from _agent(tmp_path, uno.pty)
+
+
+@pytest.fixture
+def unplugged_agent(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    """An agent process whose serial port has no Arduino behind it (its USB cable is out)."""
+    yield from _agent(tmp_path, "loop://")
+
+
 def run_args(out: Path, address: str, key: Path, *extra: str) -> list[str]:
     return ["trial", "run", "--out", str(out), "--mocap", "mock://?x=1.5&y=0", "--agent", address, "--key", str(key),
             "--design", "0.292,0.129,0.098,0.136", "--points", "1", "--per-point", "2", "--steps", "3",
@@ -53,6 +67,7 @@ def run_args(out: Path, address: str, key: Path, *extra: str) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.hil
 def test_that_an_operator_trial_set_runs_records_and_analyses(tmp_path: Path, agent: tuple[str, Path]) -> None:
     address, key = agent
     out = tmp_path / "set"
@@ -73,6 +88,19 @@ def test_that_an_operator_trial_set_runs_records_and_analyses(tmp_path: Path, ag
     assert result["e"] == pytest.approx(5.19, abs=0.05)
     base = tb("trial", "analyze", str(out), "--baseline", str(out), "--json")
     assert json.loads(base.stdout)["baseline"]["n"] == 2
+
+
+@pytest.mark.slow
+def test_that_a_trial_set_against_an_agent_with_no_arduino_records_no_finished_trial(
+        tmp_path: Path, unplugged_agent: tuple[str, Path]) -> None:
+    address, key = unplugged_agent
+    out = tmp_path / "set"
+    run = tb(*run_args(out, address, key))
+    assert run.returncode == 2, run.stdout + run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no trial started" in lines[0] and "serial_connected: false" in lines[0], lines
+    assert "done: final error" not in run.stdout and "Traceback" not in run.stderr
+    assert not out.exists() or not load_index(out)["trials"]
 
 
 def test_that_bad_trial_input_gets_one_clear_error(tmp_path: Path) -> None:
