@@ -870,6 +870,7 @@ def _add_demo_command(sub: Subcommands) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from tumblebot import __version__
     from tumblebot.host.cli import add_commands as add_host_commands
+    from tumblebot.sim.hardware.commands import add_command as add_build_command
 
     parser = argparse.ArgumentParser(
         prog="tumblebot",
@@ -887,6 +888,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate_command(sub)
     _add_optimize_command(sub)
     _add_report_command(sub)
+    add_build_command(sub)
     add_host_commands(sub, _positive_int)
     _add_demo_command(sub)
     return parser

@@ -1,0 +1,205 @@
+"""``tumblebot build``: the fabrication package of one design.
+
+:func:`build_package` writes, into one folder: the parts list (``bom.csv``, ``bom.md``),
+the laser-cutter files (``cut/*.dxf``, ``cut/*.svg``), the 3D assembly (``robot.step``,
+``robot.glb``, ``robot.png``), the wiring diagram (``wiring.svg``, ``wiring.png``), the
+mocap marker positions (``markers.csv``), the assembly guide (``assembly.md``) and a
+``package.json`` that records the design, the servo and the checks of the assembly's mass,
+centre of mass and inertia against the mass model and the URDF.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.design import Design
+from tumblebot.sim.hardware.catalogue import ServoSpec
+from tumblebot.sim.hardware.layout import LEG_TAIL, MARKERS, flat_parts, leg_plane_offset
+from tumblebot.sim.mass import MassModel
+from tumblebot.sim.power import power_breakdown
+
+BOM_COLUMNS = ("part", "quantity", "material", "size_mm", "unit_mass_kg", "mass_kg", "note")
+SERVO_SUPPLY_A = 3.0  #: A, a bench supply for two stalled standard servos with margin
+
+
+@dataclass(frozen=True)
+class BomRow:
+    part: str
+    quantity: int
+    material: str
+    size_mm: str
+    unit_mass: float
+    note: str = ""
+
+    @property
+    def mass(self) -> float:
+        return self.quantity * self.unit_mass
+
+
+def bom(w: Design, mass: MassModel) -> list[BomRow]:
+    """The parts list; its masses are the mass model's, so its total is ``m(w)``."""
+    s = mass.servo
+    y, z, x, l = (round(v * 1e3, 1) for v in (w.y, w.z, w.x, w.l))  # noqa: E741
+    nuts = mass.rod_count * 4
+    mu, mv = (round(v * 1e3, 1) for v in mass.mount_outline())
+    return [
+        BomRow("side plate", 2, "MDF 4 mm", f"{y:g} x {z:g} x {mass.plate_thickness * 1e3:g}", mass.plate_mass(w),
+               "cut/side_plate_right.*, cut/side_plate_left.* (cut-outs taken off the mass)"),
+        BomRow("threaded rod M8", mass.rod_count, "zinc-plated steel", f"M8 x {x:g}", mass.rod_mass(w),
+               f"cut to {x:g} mm, ends deburred"),
+        BomRow("M8 nut with washer", nuts, "steel", "M8", mass.hardware_mass / nuts,
+               f"{nuts // 2} full nuts (inside the plates), {nuts // 2} jam nuts (outside), {nuts} washers"),
+        BomRow("leg", 2, "Delrin (POM) 3 mm", f"{mass.leg_width * 1e3:g} x {l + LEG_TAIL:g} x "
+               f"{mass.leg_thickness * 1e3:g}", mass.leg_mass(w),
+               f"cut/leg.*: {l:g} mm from the axis hole to the foot"),
+        BomRow("motor mount", 2, "Delrin (POM) 3 mm", f"{mu:g} x {mv:g} x {mass.mount_thickness * 1e3:g}",
+               mass.mount_mass(), "cut/motor_mount.*"),
+        BomRow("servo", 2, s.part, " x ".join(f"{v:g}" for v in s.body_mm), s.mass,
+               f"catalogue entry '{s.name}', with its horn and screws"),
+        BomRow("electronics board", 1, "Raspberry Pi 3B+, Arduino Uno, wiring",
+               " x ".join(f"{v * 1e3:g}" for v in mass.electronics_size), mass.electronics_mass,
+               "centred between the plates"),
+    ]
+
+
+def write_bom(rows: list[BomRow], folder: Path) -> float:
+    """``bom.csv`` and ``bom.md``; returns the total mass, kg."""
+    total = sum(r.mass for r in rows)
+    with (folder / "bom.csv").open("w", newline="") as fh:
+        out = csv.writer(fh)
+        out.writerow(BOM_COLUMNS)
+        for r in rows:
+            out.writerow([r.part, r.quantity, r.material, r.size_mm, f"{r.unit_mass:.6f}", f"{r.mass:.6f}", r.note])
+        out.writerow(["total", sum(r.quantity for r in rows), "", "", "", f"{total:.6f}", "m(w) of the mass model"])
+    lines = ["| part | qty | material | size (mm) | unit mass (g) | mass (g) | note |",
+             "|---|---:|---|---|---:|---:|---|"]
+    lines += [f"| {r.part} | {r.quantity} | {r.material} | {r.size_mm} | {r.unit_mass * 1e3:.1f} | "
+              f"{r.mass * 1e3:.1f} | {r.note} |" for r in rows]
+    lines.append(f"| **total** | | | | | **{total * 1e3:.1f}** | the mass model's m(w) |")
+    (folder / "bom.md").write_text("# Parts list\n\n" + "\n".join(lines) + "\n")
+    return total
+
+
+def marker_table(w: Design, mass: MassModel) -> list[tuple[str, float, float, float]]:
+    """Mocap marker base centres in the body frame (mm): on the plates' outer faces."""
+    outer = (w.x / 2 - mass.rod_overhang) * 1e3
+    rows = []
+    for side, sign in (("right", 1), ("left", -1)):
+        for k, (fu, fv) in enumerate(MARKERS[side]):
+            u, v = fu * w.y / 2 * 1e3, fv * w.z / 2 * 1e3
+            rows.append((f"{side}_{k + 1}", round(sign * outer, 3), round(sign * u, 3), round(v, 3)))
+    return rows
+
+
+def battery_allowance(w: Design, mass: MassModel, tolerance: float = 0.02) -> float:
+    """The largest mass (kg) a battery could add before ``e(w)`` rises by ``tolerance``."""
+    base = power_breakdown(w, mass).e
+    if not np.isfinite(base):
+        return float("nan")
+    lo, hi = 0.0, 0.5
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        e = power_breakdown(w, replace(mass, electronics_mass=mass.electronics_mass + mid)).e
+        lo, hi = (mid, hi) if e <= base * (1 + tolerance) else (lo, mid)
+    return lo
+
+
+def write_wiring(folder: Path, servo: ServoSpec) -> None:
+    """The wiring and power diagram, as SVG and PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import FancyBboxPatch
+
+    fig, ax = plt.subplots(figsize=(9, 5.2), dpi=110)
+    ax.set_xlim(0, 100)
+    ax.set_ylim(0, 60)
+    ax.axis("off")
+    boxes = {
+        "bench": (2, 42, 24, 14, f"bench supply\n{servo.voltage:g} V, ≥ {SERVO_SUPPLY_A:g} A\n(servos)"),
+        "usb": (2, 4, 24, 12, "USB supply\n5.1 V, 2.5 A\n(Raspberry Pi)"),
+        "pi": (38, 4, 22, 14, "Raspberry Pi 3B+\n(agent, Wi-Fi to host)"),
+        "uno": (38, 28, 22, 14, "Arduino Uno\n(firmware)"),
+        "right": (74, 42, 24, 12, "right servo (+x)\nsignal ← D9"),
+        "left": (74, 22, 24, 12, "left servo (−x)\nsignal ← D10"),
+    }
+    for x, y, wd, ht, text in boxes.values():
+        ax.add_patch(FancyBboxPatch((x, y), wd, ht, boxstyle="round,pad=0.6", fc="#f4f4f4", ec="#333333"))
+        ax.text(x + wd / 2, y + ht / 2, text, ha="center", va="center", fontsize=8.5)
+
+    def wire(points: list[tuple[float, float]], colour: str, label: str = "") -> None:
+        xs, ys = zip(*points, strict=True)
+        ax.plot(xs, ys, color=colour, lw=2)
+        if label:
+            ax.text(xs[len(xs) // 2] + 0.5, ys[len(ys) // 2] + 0.8, label, color=colour, fontsize=7.5)
+
+    wire([(26, 53), (70, 53), (74, 50)], "#c00000", f"V+ {servo.voltage:g} V")
+    wire([(70, 53), (70, 30), (74, 30)], "#c00000")
+    wire([(26, 45), (66, 45), (74, 44)], "#000000", "GND (common)")
+    wire([(66, 45), (66, 24), (74, 24)], "#000000")
+    wire([(66, 35), (60.6, 35)], "#000000", "")
+    wire([(60.6, 38), (72, 38), (74, 52)], "#e0a000", "D9")
+    wire([(60.6, 31), (68, 31), (74, 28)], "#e0a000", "D10")
+    wire([(26, 10), (37.4, 10)], "#c00000", "micro-USB 5 V")
+    wire([(49, 18.6), (49, 27.4)], "#1f4fbf", "USB A–B (serial + Uno power)")
+    ax.text(50, 1, "One tether from the bench carries both supplies; the Uno's GND joins the servo supply's GND "
+            "(never power servos from the Uno's 5 V pin).", ha="center", fontsize=7.5)
+    fig.tight_layout()
+    fig.savefig(folder / "wiring.svg")
+    fig.savefig(folder / "wiring.png")
+    plt.close(fig)
+
+
+def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str], None] = lambda _: None
+                  ) -> dict[str, Any]:
+    """Write the package for design ``w`` (the mass model carries the servo) into ``out``;
+    returns what ``package.json`` records."""
+    from tumblebot.sim.hardware import cad
+    from tumblebot.sim.hardware.cutfiles import write_dxf, write_svg
+    from tumblebot.sim.hardware.guide import write_guide
+    from tumblebot.sim.robot import RobotModel, urdf_mass_properties
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "cut").mkdir(exist_ok=True)
+    progress("parts list")
+    rows = bom(w, mass)
+    total = write_bom(rows, out)
+    progress("laser-cutter files")
+    for part, _ in flat_parts(w, mass):
+        write_dxf(part, out / "cut" / f"{part.name}.dxf")
+        write_svg(part, out / "cut" / f"{part.name}.svg")
+    with (out / "markers.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(("marker", "x_mm", "y_mm", "z_mm"))
+        writer.writerows(marker_table(w, mass))
+    progress("3D assembly (build123d)")
+    solids = cad.assembly(w, mass)
+    props = cad.mass_properties(solids)
+    cad.write_assembly(solids, out / "robot.step", out / "robot.glb")
+    cad.render_png(out / "robot.glb", out / "robot.png", f"tumblebot {w}")
+    progress("wiring diagram and assembly guide")
+    write_wiring(out, mass.servo)
+    urdf = urdf_mass_properties(RobotModel.from_design(w, mass))
+    power = power_breakdown(w, mass)
+    record: dict[str, Any] = {
+        "design": w.as_dict(), "servo": mass.servo.as_dict(), "mass_model_kg": mass.total_mass(w), "bom_kg": total,
+        "e": power.e if power.can_tumble else None,
+        "cad": props, "urdf": urdf,
+        "cad_mass_error": props["mass"] / mass.total_mass(w) - 1,
+        "leg_plane_mm": dict(zip(("built", "simulated"), leg_plane_offset(mass), strict=True)),
+        "battery_allowance_kg": battery_allowance(w, mass),
+        "files": ["bom.csv", "bom.md", "assembly.md", "markers.csv", "robot.step", "robot.glb", "robot.png",
+                  "wiring.svg", "wiring.png",
+                  *sorted(f"cut/{p.name}.{ext}" for p, _ in flat_parts(w, mass) for ext in ("dxf", "svg"))],
+    }
+    write_guide(out, w, mass, rows, record)
+    (out / "package.json").write_text(json.dumps(record, indent=2) + "\n")
+    return record
