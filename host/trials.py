@@ -27,6 +27,7 @@ import numpy as np
 
 from tumblebot.errors import TumblebotError
 from tumblebot.host.controller import COMPLETE, ControllerConfig, TrialResult, TrialRunner
+from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.design import Design
@@ -238,20 +239,13 @@ def check_link(controller: TrialRunner, timeout: float) -> dict[str, Any]:
     telemetry. Raises :class:`TrialError` (one line, saying which) when the agent does not
     answer or its serial link stays down for ``timeout`` s."""
     agent = controller.agent
-    deadline = time.monotonic() + timeout
-    body: dict[str, Any] | None = None
-    while time.monotonic() < deadline:
-        agent.request_telemetry()
-        t_end = min(deadline, time.monotonic() + 0.3)
-        while time.monotonic() < t_end:
-            for body in agent.poll():
-                if TrialRunner.link_fault(body) is None:
-                    return body
-            time.sleep(0.02)
-    where = f"{agent.address[0]}:{agent.address[1]}"
-    if body is None and not agent.last_telemetry:
+    body = _telemetry_until(agent, timeout, lambda body: TrialRunner.link_fault(body) is None)
+    if body is not None:
+        return body
+    if not agent.last_telemetry:
+        where = f"{agent.address[0]}:{agent.address[1]}"
         raise TrialError(f"the agent at {where} did not answer within {timeout:.0f} s (is it running, with this key?)")
-    fault = TrialRunner.link_fault(body or agent.last_telemetry)
+    fault = TrialRunner.link_fault(agent.last_telemetry)
     assert fault is not None
     raise TrialError(f"no trial started: {fault[1]} (waited {timeout:.0f} s; run the same command to resume)")
 
@@ -268,16 +262,25 @@ def _set_aside(folder: Path, index: dict[str, Any], trial: int, path: Path, stat
 def _wait_for_agent(controller: TrialRunner, timeout: float, out: Callable[[str], None]) -> None:
     agent = controller.agent
     out(f"waiting for the agent at {agent.address[0]}:{agent.address[1]} (restart it, or check the network)")
+    if _telemetry_until(agent, timeout, lambda body: True) is None:
+        raise TrialError(f"the agent did not come back within {timeout:.0f} s; run the same command to resume")
+    out("the agent answers again; continuing")
+
+
+def _telemetry_until(agent: AgentClient, timeout: float, accept: Callable[[dict[str, Any]], bool]
+                     ) -> dict[str, Any] | None:
+    """Ask for telemetry every 0.5 s until a reply that ``accept``s comes (returned), or
+    ``timeout`` s pass (None)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         agent.request_telemetry()
-        t_end = time.monotonic() + 0.5
+        t_end = min(deadline, time.monotonic() + 0.5)
         while time.monotonic() < t_end:
-            if agent.poll():
-                out("the agent answers again; continuing")
-                return
+            for body in agent.poll():
+                if accept(body):
+                    return body
             time.sleep(0.02)
-    raise TrialError(f"the agent did not come back within {timeout:.0f} s; run the same command to resume")
+    return None
 
 
 def make_plan(setpoint: tuple[float, float], heading: float, radius: float, points: int, per_point: int, task: str,

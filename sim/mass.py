@@ -21,22 +21,25 @@ below were chosen (rounded to catalogue values):
 * legs: Delrin (1410 kg/m³), 15 mm × 3 mm cross-section: 0.0635 kg/m each.
 * servos: the servo catalogue's entry (:mod:`tumblebot.sim.hardware.catalogue`; the
   default is the simulator's servo, 43 g), each on a 3 mm Delrin motor mount that doubles
-  the side plate around the servo's cut-out (about 4 g each). The side plates' cut-outs
-  (the servo, its screws, the rod holes) are taken off their mass, so the model weighs what
-  the fabrication package cuts (:mod:`tumblebot.sim.hardware`).
+  the side plate around the servo's cut-out (5.0 g each). The side plates' cut-outs (the
+  servo, its screws, the rod holes: 3.3 g a plate on the thesis servo) are taken off their
+  mass, so the model weighs what the fabrication package cuts (:mod:`tumblebot.sim.hardware`).
+  Together these add 3.3 g to the fit's constant term (0.264 kg with the mounts).
 
 Geometry. ``x`` is the length of the threaded rods, which is the body's overall width: each
 plate sits ``rod_overhang`` inside a rod end (a washer and an M8 jam nut outside it), so
 the plates' centres are at ``±(x/2 − rod_overhang − plate_thickness/2)``.
 
-With these constants the model reproduces the ``e`` column of Table 3.1 within 0.7 %
-(+0.36, −0.61, −0.19, +0.12 % for ξ = 0, 1, 3, ∞)
+With these constants the model reproduces the ``e`` column of Table 3.1 within 1 %
+(+0.99, +0.02, +0.45, +0.86 % for ξ = 0, 1, 3, ∞; +0.36, −0.61, −0.19, +0.12 % before the
+motor mounts and the cut-outs were modelled)
 (see ``tests/sim/test_power.py``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -187,6 +190,19 @@ class MassModel:
         m = self.leg_mass(w)
         a, b, c = self.leg_thickness, self.leg_width, w.l
         return m / 12 * np.array([b**2 + c**2, a**2 + c**2, a**2 + b**2])
+
+
+def combine(masses: Sequence[float], centres: Sequence[np.ndarray], inertias: Sequence[np.ndarray]
+            ) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass and inertia tensor about it of rigid parts, each given by its
+    mass, its centre of mass and its inertia tensor about that centre (parallel-axis theorem)."""
+    total = float(sum(masses))
+    com = sum((m * np.asarray(c) for m, c in zip(masses, centres, strict=True)), np.zeros(3)) / total
+    inertia = np.zeros((3, 3))
+    for m, c, i in zip(masses, centres, inertias, strict=True):
+        d = np.asarray(c) - com
+        inertia += np.asarray(i) + m * (float(d @ d) * np.eye(3) - np.outer(d, d))
+    return total, com, inertia
 
 
 DEFAULT_MASS_MODEL = MassModel()

@@ -17,7 +17,7 @@ import numpy as np
 
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import Design
-from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel
+from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel, combine
 from tumblebot.sim.pb import pybullet
 
 LEG_NAMES: tuple[str, str] = ("leg_right", "leg_left")  #: joint order: +x side, −x side
@@ -221,14 +221,9 @@ def urdf_mass_properties(model: RobotModel) -> dict[str, object]:
     """Mass (kg), centre of mass (m, body frame) and inertia tensor about it (kg·m²) of the
     whole robot as the URDF describes it, legs at angle 0 (along body +z). The fabrication
     package checks its 3D assembly against these."""
-    masses = [model.body_mass, model.leg_mass, model.leg_mass]
     leg_centre = np.array([0.0, 0.0, model.design.l / 2])
-    centres = [np.zeros(3), *(np.array(j) + leg_centre for j in model.joint_positions())]
-    own = [np.diag(model.body_inertia), np.diag(model.leg_inertia), np.diag(model.leg_inertia)]
-    total = sum(masses)
-    com = sum(m * c for m, c in zip(masses, centres, strict=True)) / total
-    inertia = np.zeros((3, 3))
-    for m, c, i in zip(masses, centres, own, strict=True):
-        d = c - com
-        inertia += i + m * (float(d @ d) * np.eye(3) - np.outer(d, d))
-    return {"mass": float(total), "com": [float(v) for v in com], "inertia": inertia.tolist()}
+    total, com, inertia = combine(
+        [model.body_mass, model.leg_mass, model.leg_mass],
+        [np.zeros(3), *(np.array(j) + leg_centre for j in model.joint_positions())],
+        [np.diag(model.body_inertia), np.diag(model.leg_inertia), np.diag(model.leg_inertia)])
+    return {"mass": total, "com": com.tolist(), "inertia": inertia.tolist()}

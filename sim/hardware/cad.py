@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import Design
-from tumblebot.sim.hardware.layout import LEG_TAIL, Circle, FlatPart, Rect, flat_parts, leg_plane_offset
-from tumblebot.sim.mass import MassModel
+from tumblebot.sim.hardware.layout import Circle, FlatPart, Rect, flat_parts, leg_plane_offset
+from tumblebot.sim.mass import MassModel, combine
 
 NUT_DIAMETER, NUT_HEIGHT = 13.0, 5.6  #: mm, an M8 nut with its washer, as one solid
 HORN_DIAMETER, HORN_HEIGHT = 20.0, 2.5  #: mm, a round servo horn (the mass model's horn_stack includes it)
@@ -110,15 +110,10 @@ def assembly(w: Design, mass: MassModel) -> list[Solid]:
 
 def mass_properties(solids: list[Solid]) -> dict[str, Any]:
     """Mass (kg), centre of mass (m) and inertia tensor about it (kg·m²) of the assembly."""
-    masses = np.array([s.mass for s in solids])
-    centres = np.array([[c.X, c.Y, c.Z] for c in (s.shape.center() for s in solids)]) * 1e-3
-    total = float(masses.sum())
-    com = (masses[:, None] * centres).sum(axis=0) / total
-    inertia = np.zeros((3, 3))
-    for s, m, c in zip(solids, masses, centres, strict=True):
-        own = np.array(s.shape.matrix_of_inertia) * s.density * 1e-6  # kg·mm² → kg·m²
-        d = c - com
-        inertia += own + m * (float(d @ d) * np.eye(3) - np.outer(d, d))
+    total, com, inertia = combine(
+        [s.mass for s in solids],
+        [np.array([c.X, c.Y, c.Z]) * 1e-3 for c in (s.shape.center() for s in solids)],
+        [np.array(s.shape.matrix_of_inertia) * s.density * 1e-6 for s in solids])  # kg·mm² → kg·m²
     return {"mass": total, "com": com.tolist(), "inertia": inertia.tolist()}
 
 
@@ -174,6 +169,3 @@ def render_png(glb: Path, png: Path, title: str) -> None:
     fig.tight_layout()
     fig.savefig(png)
     plt.close(fig)
-
-
-__all__ = ["LEG_TAIL", "Solid", "assembly", "mass_properties", "render_png", "write_assembly"]

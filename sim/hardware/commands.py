@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -48,11 +49,7 @@ def _build(args: argparse.Namespace) -> int:
     out: Path = args.output
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
         raise TumblebotError(f"-o {out} exists and is not an empty folder (pass --force to overwrite its package)")
-    probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
-    import os
-
-    if not os.access(probe, os.W_OK):
-        raise TumblebotError(f"-o {out}: {probe} is not writable")
+    args.check_writable(out / "assembly.md", "-o")
     try:
         import build123d  # noqa: F401
         import ezdxf  # noqa: F401
@@ -70,15 +67,9 @@ def _build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _xi(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number (or inf)") from None
-
-
-def add_command(sub: Any) -> None:
-    """Add ``build`` to the ``tumblebot`` parser."""
+def add_command(sub: Any, number: Callable[[str], float], check_writable: Callable[[Path, str], None]) -> None:
+    """Add ``build`` to the ``tumblebot`` parser. ``number`` parses a float argument and
+    ``check_writable`` refuses an unwritable output path, as every other command does."""
     p = sub.add_parser(
         "build", help="write the fabrication package of a design: parts list, laser-cutter files, 3D model, guide",
         description="Write everything a lab needs to build a robot: bom.csv/bom.md (parts, sizes, masses; the total "
@@ -88,11 +79,11 @@ def add_command(sub: Any) -> None:
     p.add_argument("--design", metavar="X,Y,Z,L", default=None, help="the design in metres")
     p.add_argument("--storage", metavar="URL", default=None, help="take a study's optimum from this storage")
     p.add_argument("--study", metavar="NAME", default=None, help="the study (with --storage)")
-    p.add_argument("--xi", type=_xi, default=None,
+    p.add_argument("--xi", type=number, default=None,
                    help="with --storage: the optimum for this energy weight ξ (default: the study's own objective)")
     p.add_argument("--servo", metavar="NAME", default=None,
                    help="a servo from the catalogue (default: the simulator's servo, 'thesis')")
     p.add_argument("-o", "--output", type=Path, required=True, help="folder to write the package into")
     p.add_argument("--force", action="store_true", help="write into a folder that is not empty")
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
-    p.set_defaults(func=_build)
+    p.set_defaults(func=_build, check_writable=check_writable)

@@ -1,4 +1,5 @@
-"""``assembly.md``: how to cut, assemble, wire, flash and track the robot of one design."""
+"""``assembly.md`` and the wiring diagram: how to cut, assemble, wire, flash and track the
+robot of one design."""
 
 from __future__ import annotations
 
@@ -6,13 +7,61 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.sim.design import Design
-from tumblebot.sim.hardware.layout import HORN_ARM_HOLE, HORN_SCREW_HOLE, LEG_TAIL, MARKER_DIAMETER
+from tumblebot.sim.hardware.catalogue import ServoSpec
+from tumblebot.sim.hardware.layout import HORN_ARM_HOLE, HORN_SCREW_HOLE, LEG_TAIL, MARKER_DIAMETER, marker_table
 from tumblebot.sim.mass import MassModel
+
+SERVO_SUPPLY_A = 3.0  #: A, a bench supply for two stalled standard servos with margin
+
+
+def write_wiring(folder: Path, servo: ServoSpec) -> None:
+    """The wiring and power diagram, as SVG and PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import FancyBboxPatch
+
+    fig, ax = plt.subplots(figsize=(9, 5.2), dpi=110)
+    ax.set_xlim(0, 100)
+    ax.set_ylim(0, 60)
+    ax.axis("off")
+    boxes = {
+        "bench": (2, 42, 24, 14, f"bench supply\n{servo.voltage:g} V, ≥ {SERVO_SUPPLY_A:g} A\n(servos)"),
+        "usb": (2, 4, 24, 12, "USB supply\n5.1 V, 2.5 A\n(Raspberry Pi)"),
+        "pi": (38, 4, 22, 14, "Raspberry Pi 3B+\n(agent, Wi-Fi to host)"),
+        "uno": (38, 28, 22, 14, "Arduino Uno\n(firmware)"),
+        "right": (74, 42, 24, 12, "right servo (+x)\nsignal ← D9"),
+        "left": (74, 22, 24, 12, "left servo (−x)\nsignal ← D10"),
+    }
+    for x, y, wd, ht, text in boxes.values():
+        ax.add_patch(FancyBboxPatch((x, y), wd, ht, boxstyle="round,pad=0.6", fc="#f4f4f4", ec="#333333"))
+        ax.text(x + wd / 2, y + ht / 2, text, ha="center", va="center", fontsize=8.5)
+
+    def wire(points: list[tuple[float, float]], colour: str, label: str = "") -> None:
+        xs, ys = zip(*points, strict=True)
+        ax.plot(xs, ys, color=colour, lw=2)
+        if label:
+            ax.text(xs[len(xs) // 2] + 0.5, ys[len(ys) // 2] + 0.8, label, color=colour, fontsize=7.5)
+
+    wire([(26, 53), (70, 53), (74, 50)], "#c00000", f"V+ {servo.voltage:g} V")
+    wire([(70, 53), (70, 30), (74, 30)], "#c00000")
+    wire([(26, 45), (66, 45), (74, 44)], "#000000", "GND (common)")
+    wire([(66, 45), (66, 24), (74, 24)], "#000000")
+    wire([(66, 35), (60.6, 35)], "#000000", "")
+    wire([(60.6, 38), (72, 38), (74, 52)], "#e0a000", "D9")
+    wire([(60.6, 31), (68, 31), (74, 28)], "#e0a000", "D10")
+    wire([(26, 10), (37.4, 10)], "#c00000", "micro-USB 5 V")
+    wire([(49, 18.6), (49, 27.4)], "#1f4fbf", "USB A–B (serial + Uno power)")
+    ax.text(50, 1, "One tether from the bench carries both supplies; the Uno's GND joins the servo supply's GND "
+            "(never power servos from the Uno's 5 V pin).", ha="center", fontsize=7.5)
+    fig.tight_layout()
+    fig.savefig(folder / "wiring.svg")
+    fig.savefig(folder / "wiring.png")
+    plt.close(fig)
 
 
 def write_guide(out: Path, w: Design, mass: MassModel, rows: list[Any], record: dict[str, Any]) -> None:
-    from tumblebot.sim.hardware.package import SERVO_SUPPLY_A, marker_table
-
     s = mass.servo
     x, y, z, l = (v * 1e3 for v in (w.x, w.y, w.z, w.l))  # noqa: E741
     built, simulated = record["leg_plane_mm"]["built"], record["leg_plane_mm"]["simulated"]

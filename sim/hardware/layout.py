@@ -127,3 +127,14 @@ def flat_parts(w: Design, mass: MassModel) -> list[tuple[FlatPart, int]]:
     """Every laser-cut part with how many to cut."""
     return [(side_plate(w, mass, "right"), 1), (side_plate(w, mass, "left"), 1), (motor_mount(mass), 2),
             (leg(w, mass), 2)]
+
+
+def marker_table(w: Design, mass: MassModel) -> list[tuple[str, float, float, float]]:
+    """Mocap marker base centres in the body frame (mm): on the plates' outer faces."""
+    outer = (w.x / 2 - mass.rod_overhang) * 1e3
+    rows = []
+    for side, sign in (("right", 1), ("left", -1)):
+        for k, (fu, fv) in enumerate(MARKERS[side]):
+            u, v = fu * w.y / 2 * 1e3, fv * w.z / 2 * 1e3
+            rows.append((f"{side}_{k + 1}", round(sign * outer, 3), round(sign * u, 3), round(v, 3)))
+    return rows

@@ -20,13 +20,14 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import Design
-from tumblebot.sim.hardware.catalogue import ServoSpec
-from tumblebot.sim.hardware.layout import LEG_TAIL, MARKERS, flat_parts, leg_plane_offset
+from tumblebot.sim.hardware import cad
+from tumblebot.sim.hardware.cutfiles import write_dxf, write_svg
+from tumblebot.sim.hardware.guide import write_guide, write_wiring
+from tumblebot.sim.hardware.layout import LEG_TAIL, flat_parts, leg_plane_offset, marker_table
 from tumblebot.sim.mass import MassModel
 from tumblebot.sim.power import power_breakdown
 
 BOM_COLUMNS = ("part", "quantity", "material", "size_mm", "unit_mass_kg", "mass_kg", "note")
-SERVO_SUPPLY_A = 3.0  #: A, a bench supply for two stalled standard servos with margin
 
 
 @dataclass(frozen=True)
@@ -87,17 +88,6 @@ def write_bom(rows: list[BomRow], folder: Path) -> float:
     return total
 
 
-def marker_table(w: Design, mass: MassModel) -> list[tuple[str, float, float, float]]:
-    """Mocap marker base centres in the body frame (mm): on the plates' outer faces."""
-    outer = (w.x / 2 - mass.rod_overhang) * 1e3
-    rows = []
-    for side, sign in (("right", 1), ("left", -1)):
-        for k, (fu, fv) in enumerate(MARKERS[side]):
-            u, v = fu * w.y / 2 * 1e3, fv * w.z / 2 * 1e3
-            rows.append((f"{side}_{k + 1}", round(sign * outer, 3), round(sign * u, 3), round(v, 3)))
-    return rows
-
-
 def battery_allowance(w: Design, mass: MassModel, tolerance: float = 0.02) -> float:
     """The largest mass (kg) a battery could add before ``e(w)`` rises by ``tolerance``."""
     base = power_breakdown(w, mass).e
@@ -111,60 +101,10 @@ def battery_allowance(w: Design, mass: MassModel, tolerance: float = 0.02) -> fl
     return lo
 
 
-def write_wiring(folder: Path, servo: ServoSpec) -> None:
-    """The wiring and power diagram, as SVG and PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import FancyBboxPatch
-
-    fig, ax = plt.subplots(figsize=(9, 5.2), dpi=110)
-    ax.set_xlim(0, 100)
-    ax.set_ylim(0, 60)
-    ax.axis("off")
-    boxes = {
-        "bench": (2, 42, 24, 14, f"bench supply\n{servo.voltage:g} V, ≥ {SERVO_SUPPLY_A:g} A\n(servos)"),
-        "usb": (2, 4, 24, 12, "USB supply\n5.1 V, 2.5 A\n(Raspberry Pi)"),
-        "pi": (38, 4, 22, 14, "Raspberry Pi 3B+\n(agent, Wi-Fi to host)"),
-        "uno": (38, 28, 22, 14, "Arduino Uno\n(firmware)"),
-        "right": (74, 42, 24, 12, "right servo (+x)\nsignal ← D9"),
-        "left": (74, 22, 24, 12, "left servo (−x)\nsignal ← D10"),
-    }
-    for x, y, wd, ht, text in boxes.values():
-        ax.add_patch(FancyBboxPatch((x, y), wd, ht, boxstyle="round,pad=0.6", fc="#f4f4f4", ec="#333333"))
-        ax.text(x + wd / 2, y + ht / 2, text, ha="center", va="center", fontsize=8.5)
-
-    def wire(points: list[tuple[float, float]], colour: str, label: str = "") -> None:
-        xs, ys = zip(*points, strict=True)
-        ax.plot(xs, ys, color=colour, lw=2)
-        if label:
-            ax.text(xs[len(xs) // 2] + 0.5, ys[len(ys) // 2] + 0.8, label, color=colour, fontsize=7.5)
-
-    wire([(26, 53), (70, 53), (74, 50)], "#c00000", f"V+ {servo.voltage:g} V")
-    wire([(70, 53), (70, 30), (74, 30)], "#c00000")
-    wire([(26, 45), (66, 45), (74, 44)], "#000000", "GND (common)")
-    wire([(66, 45), (66, 24), (74, 24)], "#000000")
-    wire([(66, 35), (60.6, 35)], "#000000", "")
-    wire([(60.6, 38), (72, 38), (74, 52)], "#e0a000", "D9")
-    wire([(60.6, 31), (68, 31), (74, 28)], "#e0a000", "D10")
-    wire([(26, 10), (37.4, 10)], "#c00000", "micro-USB 5 V")
-    wire([(49, 18.6), (49, 27.4)], "#1f4fbf", "USB A–B (serial + Uno power)")
-    ax.text(50, 1, "One tether from the bench carries both supplies; the Uno's GND joins the servo supply's GND "
-            "(never power servos from the Uno's 5 V pin).", ha="center", fontsize=7.5)
-    fig.tight_layout()
-    fig.savefig(folder / "wiring.svg")
-    fig.savefig(folder / "wiring.png")
-    plt.close(fig)
-
-
 def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str], None] = lambda _: None
                   ) -> dict[str, Any]:
     """Write the package for design ``w`` (the mass model carries the servo) into ``out``;
     returns what ``package.json`` records."""
-    from tumblebot.sim.hardware import cad
-    from tumblebot.sim.hardware.cutfiles import write_dxf, write_svg
-    from tumblebot.sim.hardware.guide import write_guide
     from tumblebot.sim.robot import RobotModel, urdf_mass_properties
 
     out.mkdir(parents=True, exist_ok=True)
@@ -173,7 +113,8 @@ def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str
     rows = bom(w, mass)
     total = write_bom(rows, out)
     progress("laser-cutter files")
-    for part, _ in flat_parts(w, mass):
+    parts = [part for part, _ in flat_parts(w, mass)]
+    for part in parts:
         write_dxf(part, out / "cut" / f"{part.name}.dxf")
         write_svg(part, out / "cut" / f"{part.name}.svg")
     with (out / "markers.csv").open("w", newline="") as fh:
@@ -198,7 +139,7 @@ def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str
         "battery_allowance_kg": battery_allowance(w, mass),
         "files": ["bom.csv", "bom.md", "assembly.md", "markers.csv", "robot.step", "robot.glb", "robot.png",
                   "wiring.svg", "wiring.png",
-                  *sorted(f"cut/{p.name}.{ext}" for p, _ in flat_parts(w, mass) for ext in ("dxf", "svg"))],
+                  *sorted(f"cut/{p.name}.{ext}" for p in parts for ext in ("dxf", "svg"))],
     }
     write_guide(out, w, mass, rows, record)
     (out / "package.json").write_text(json.dumps(record, indent=2) + "\n")
