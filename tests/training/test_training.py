@@ -135,7 +135,7 @@ def test_that_evaluate_json_reports_mean_ci_e_and_episodes(tiny_policy: Path, ca
     out = json.loads(capsys.readouterr().out)
     assert out["episodes"] == 4
     assert out["ci95"][0] <= out["mean_R"] <= out["ci95"][1]
-    assert out["e"] == pytest.approx(5.19, abs=0.02)
+    assert out["e"] == pytest.approx(5.22, abs=0.02)
     assert "mean_f" in out
     assert len(csv_path.read_text().splitlines()) == 5
 
