@@ -24,6 +24,13 @@ def _xy(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _neutral_pair(text: str) -> tuple[float, float]:
+    right, left = _xy(text)
+    if not (1300 <= right <= 1700 and 1300 <= left <= 1700):
+        raise argparse.ArgumentTypeError(f"{text!r}: neutral pulses are 1300–1700 µs")
+    return right, left
+
+
 def say(message: str) -> None:
     """One line to stdout in one write (the log thread may print ``@written`` lines too)."""
     sys.stdout.write(message + "\n")
@@ -157,11 +164,13 @@ def _trial_analyze(args: argparse.Namespace) -> int:
 
 def _twin_world(args: argparse.Namespace) -> int:
     from tumblebot.host.link import parse_address
-    from tumblebot.host.twin import run_world
+    from tumblebot.host.twin import MOUNTING, ServoHardware, run_world
     from tumblebot.sim.design import Design
 
+    right, left = (-MOUNTING[s] if s in args.reverse_servo else MOUNTING[s] for s in ("right", "left"))
+    hardware = ServoHardware(neutral=args.servo_neutral, mounting=(right, left))
     return run_world(parse_address(args.pose_to), parse_address(args.control), args.serial_link,
-                     Design.parse(args.design), args.seed, servo=_servo_of(args))
+                     Design.parse(args.design), args.seed, servo=_servo_of(args), hardware=hardware)
 
 
 def _twin_run(args: argparse.Namespace) -> int:
@@ -217,10 +226,149 @@ def _print_consistency(r: dict[str, Any]) -> None:
           f"for their starts? p = {r['p']:.3g} (per-start ranks, alpha {r['alpha']}): {verdict}")
 
 
+def _bench(args: argparse.Namespace, with_mocap: bool, expected_neutral: tuple[int, int] | None = None) -> Any:
+    """The agent (and the pose source) a bench command talks to; everything checked first."""
+    from tumblebot.host.bench import Bench, operator_if_terminal
+    from tumblebot.host.link import AgentClient, load_host_key, parse_address
+    from tumblebot.host.mocap import open_source
+
+    key = load_host_key(args.key)
+    address = parse_address(args.agent)
+    source = open_source(args.mocap) if with_mocap and args.mocap else None
+    return Bench(AgentClient(address, key), source, ask=operator_if_terminal(), say=say,
+                 expected_neutral=expected_neutral)
+
+
+def _close(bench: Any) -> None:
+    bench.agent.close()
+    if bench.source is not None:
+        bench.source.close()
+
+
+def _trim(args: argparse.Namespace) -> int:
+    from tumblebot.host.bench import format_trims, read_trims, set_trim
+
+    changes = [args.neutral, args.nudge, args.direction]
+    if args.servo is None and any(v is not None for v in changes):
+        raise TumblebotError("--neutral, --nudge and --direction need --servo right|left")
+    if args.neutral is not None and args.nudge is not None:
+        raise TumblebotError("give --neutral or --nudge, not both")
+    if args.servo is not None and all(v is None for v in changes):
+        raise TumblebotError(f"--servo {args.servo}: say what to change (--neutral US, --nudge US or --direction ±1)")
+    bench = _bench(args, with_mocap=False)
+    try:
+        if args.servo is None:
+            trims = read_trims(bench)
+            print(json.dumps(trims) if args.json else f"trims: {format_trims(trims)}")
+            return 0
+        before, after = set_trim(bench, args.servo, args.neutral, args.nudge, args.direction)
+    finally:
+        _close(bench)
+    if args.json:
+        print(json.dumps({"servo": args.servo, "before": before, "after": after}))
+    else:
+        print(f"{args.servo} servo: neutral {before['neutral_us']} → {after['neutral_us']} µs, direction "
+              f"{before['direction']:+d} → {after['direction']:+d} (stored in the Arduino's EEPROM)")
+    return 0
+
+
+def _bench_check(args: argparse.Namespace) -> int:
+    from tumblebot.host.bench import check
+
+    bench = _bench(args, with_mocap=True, expected_neutral=args.neutral_us)
+    if not args.json:
+        say(f"bench check of the agent at {args.agent}" + (f" with poses from {args.mocap}" if args.mocap else "")
+            + ": the robot will move (leave it 0.5 m of clear floor)")
+    try:
+        checks = check(bench)
+    finally:
+        _close(bench)
+    passed = all(c.ok for c in checks)
+    if args.json:
+        print(json.dumps({"passed": passed, "checks": [c.to_json() for c in checks]}))
+    else:
+        for c in checks:
+            say(c.line())
+        say("all checks passed" if passed else "NOT READY: fix what failed and run bench check again")
+    return 0 if passed else 1
+
+
+def _add_link_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
+    p.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
+
+def _microseconds(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of microseconds") from None
+
+
+def _neutral(text: str) -> int:
+    value = _microseconds(text)
+    if not 1300 <= value <= 1700:
+        raise argparse.ArgumentTypeError(f"{value} µs is outside 1300–1700 µs")
+    return value
+
+
+def _nudge(text: str) -> int:
+    value = _microseconds(text)
+    if not -400 <= value <= 400:
+        raise argparse.ArgumentTypeError(f"{value} µs: a nudge is at most ±400 µs")
+    return value
+
+
+def _direction(text: str) -> int:
+    if text not in ("+1", "1", "-1"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be +1 or -1")
+    return int(text)
+
+
+def _neutral_int_pair(text: str) -> tuple[int, int]:
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"{text!r} must be two neutral pulses RIGHT,LEFT (µs)")
+    right, left = (_neutral(p) for p in parts)
+    return right, left
+
+
+def _add_bench_commands(sub: Any) -> None:
+    t = sub.add_parser("trim", help="show or set the servos' neutral pulse and direction (stored on the Arduino)",
+                       description="Show the trims the Arduino holds, or set one servo's: its neutral pulse (the "
+                                   "width at which it stands still) and its direction (+1, or -1 for a servo "
+                                   "mounted mirrored). The agent forwards a trim only while the robot is stopped; "
+                                   "the firmware keeps it in EEPROM.")
+    _add_link_args(t)
+    t.add_argument("--servo", choices=("right", "left"), help="the servo to set (right: D9, left: D10)")
+    t.add_argument("--neutral", type=_neutral, metavar="US", help="its neutral pulse, µs (1300–1700)")
+    t.add_argument("--nudge", type=_nudge, metavar="US", help="move its neutral by this many µs (e.g. -5)")
+    t.add_argument("--direction", type=_direction, metavar="±1", help="+1 or -1: which way is forward")
+    t.set_defaults(func=_trim)
+    b = sub.add_parser("bench", help="bring-up checks before a trial set",
+                       description="Bring-up checks of the robot through its agent.")
+    bsub = b.add_subparsers(dest="bench_command", required=True, metavar="{check}")
+    c = bsub.add_parser("check", help="is the robot ready for a trial set? one line per check",
+                        description="Check, one line each: the agent answers; the Arduino is connected (epoch, "
+                                    "firmware version); its trims; the motion capture sees the robot with z up; the "
+                                    "robot keeps still when stopped; each servo turns both ways when told; the legs "
+                                    "stop when the host falls silent. With --mocap the motion is measured from the "
+                                    "poses, without it an operator at the terminal confirms. Exit 0 only when every "
+                                    "check holds. The robot moves: leave it 0.5 m of clear floor.")
+    _add_link_args(c)
+    c.add_argument("--mocap", help="pose source, as for trial run (udp://HOST:PORT?body=B, motioncapture://…)")
+    c.add_argument("--neutral-us", type=_neutral_int_pair, metavar="RIGHT,LEFT",
+                   help="the servos' neutral pulses the trim procedure found, µs: the trims must be these "
+                        "(default: each within 50 µs of 1500)")
+    c.set_defaults(func=_bench_check)
+
+
 def add_commands(sub: Any, positive_int: Any) -> None:
-    """Add ``trial`` and ``twin`` to the ``tumblebot`` parser's subcommands."""
+    """Add ``trial``, ``twin``, ``trim`` and ``bench`` to the ``tumblebot`` parser's subcommands."""
     _add_trial_commands(sub, positive_int)
     _add_twin_commands(sub, positive_int)
+    _add_bench_commands(sub)
 
 
 def _add_trial_commands(sub: Any, positive_int: Any) -> None:
@@ -313,5 +461,10 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     w.add_argument("--serial-link", type=Path, required=True, help="path for a symlink to the firmware's pty")
     w.add_argument("--design", required=True)
     w.add_argument("--seed", type=int, default=0)
+    w.add_argument("--servo-neutral", type=_neutral_pair, default=(1500.0, 1500.0), metavar="RIGHT,LEFT",
+                   help="the world's servos' own neutral pulses, µs (default 1500,1500): one the firmware's trim "
+                        "does not match creeps")
+    w.add_argument("--reverse-servo", action="append", choices=("right", "left"), default=[],
+                   help="mount this servo the other way round (a reversed servo, for bring-up tests)")
     _add_servo(w)
     w.set_defaults(func=_twin_world)

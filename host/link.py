@@ -17,6 +17,7 @@ import os
 import random
 import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +122,16 @@ class AgentClient:
     def stop(self) -> float:
         return self._send(P.UdpType.STOP)
 
+    def set_trim(self, servo: int, neutral_us: int, direction: int) -> float:
+        """Ask the agent to set a servo's trim (0 right, 1 left); it forwards it to the
+        firmware only while the robot is stopped. Raises :class:`LinkError` for a trim the
+        firmware would refuse."""
+        try:
+            payload = P.trim_payload(servo, neutral_us, direction)
+        except P.FrameError as exc:
+            raise LinkError(str(exc)) from None
+        return self._send(P.UdpType.SET_TRIM, payload)
+
     def request_telemetry(self) -> None:
         now = time.monotonic()
         if self.keys is None or (now - self.last_telemetry_at > self.RESYNC_AFTER
@@ -179,6 +190,20 @@ class AgentClient:
             self.last_telemetry = body
             out.append(body)
         return out
+
+    def telemetry_until(self, timeout: float, accept: Callable[[dict[str, Any]], bool]) -> dict[str, Any] | None:
+        """Ask for telemetry every 0.5 s until a reply that ``accept``s comes (returned), or
+        ``timeout`` s pass (None)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.request_telemetry()
+            t_end = min(deadline, time.monotonic() + 0.5)
+            while time.monotonic() < t_end:
+                for body in self.poll():
+                    if accept(body):
+                        return body
+                time.sleep(0.02)
+        return None
 
     def silent_for(self, now: float) -> float:
         return now - self.last_telemetry_at

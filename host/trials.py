@@ -27,7 +27,6 @@ import numpy as np
 
 from tumblebot.errors import TumblebotError
 from tumblebot.host.controller import COMPLETE, ControllerConfig, TrialResult, TrialRunner
-from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.design import Design
@@ -239,7 +238,7 @@ def check_link(controller: TrialRunner, timeout: float) -> dict[str, Any]:
     telemetry. Raises :class:`TrialError` (one line, saying which) when the agent does not
     answer or its serial link stays down for ``timeout`` s."""
     agent = controller.agent
-    body = _telemetry_until(agent, timeout, lambda body: TrialRunner.link_fault(body) is None)
+    body = agent.telemetry_until(timeout, lambda body: TrialRunner.link_fault(body) is None)
     if body is not None:
         return body
     if not agent.last_telemetry:
@@ -262,25 +261,9 @@ def _set_aside(folder: Path, index: dict[str, Any], trial: int, path: Path, stat
 def _wait_for_agent(controller: TrialRunner, timeout: float, out: Callable[[str], None]) -> None:
     agent = controller.agent
     out(f"waiting for the agent at {agent.address[0]}:{agent.address[1]} (restart it, or check the network)")
-    if _telemetry_until(agent, timeout, lambda body: True) is None:
+    if agent.telemetry_until(timeout, lambda body: True) is None:
         raise TrialError(f"the agent did not come back within {timeout:.0f} s; run the same command to resume")
     out("the agent answers again; continuing")
-
-
-def _telemetry_until(agent: AgentClient, timeout: float, accept: Callable[[dict[str, Any]], bool]
-                     ) -> dict[str, Any] | None:
-    """Ask for telemetry every 0.5 s until a reply that ``accept``s comes (returned), or
-    ``timeout`` s pass (None)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        agent.request_telemetry()
-        t_end = min(deadline, time.monotonic() + 0.5)
-        while time.monotonic() < t_end:
-            for body in agent.poll():
-                if accept(body):
-                    return body
-            time.sleep(0.02)
-    return None
 
 
 def make_plan(setpoint: tuple[float, float], heading: float, radius: float, points: int, per_point: int, task: str,

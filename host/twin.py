@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -65,11 +66,12 @@ def _emulator() -> Any:
     return emulator
 
 
-def pulse_to_command(width: float | None, mounting: float) -> float:
-    """A servo's pulse width (µs) → its leg's command in [-1, 1] (no pulse: stopped)."""
+def pulse_to_command(width: float | None, mounting: float, neutral: float = NEUTRAL_US) -> float:
+    """A servo's pulse width (µs) → its leg's command in [-1, 1] (no pulse: stopped).
+    ``neutral`` is the servo's own neutral: a trim that differs from it makes the leg creep."""
     if width is None:
         return 0.0
-    offset = width - NEUTRAL_US
+    offset = width - neutral
     if abs(offset) < DEADBAND_US:
         return 0.0
     return max(-1.0, min(1.0, mounting * offset / FULL_SPEED_US))
@@ -90,11 +92,27 @@ def _start_emulator(serial_link: Path) -> Any:
     return uno
 
 
+@dataclass(frozen=True)
+class ServoHardware:
+    """How the world's servos are built and mounted: their own neutral pulse (µs) and
+    which way a longer pulse turns the leg. A lab's servos differ from the firmware's
+    default trims; the twin can be given such servos to test bring-up (``bench check``)."""
+
+    neutral: tuple[float, float] = (NEUTRAL_US, NEUTRAL_US)  #: (right, left)
+    mounting: tuple[float, float] = (MOUNTING["right"], MOUNTING["left"])
+
+    def commands(self, widths: tuple[float | None, float | None]) -> tuple[float, float]:
+        return (pulse_to_command(widths[0], self.mounting[0], self.neutral[0]),
+                pulse_to_command(widths[1], self.mounting[1], self.neutral[1]))
+
+
 class _World:
     """The world's state between control datagrams and physics substeps."""
 
-    def __init__(self, env: Any, uno: Any, pose_to: tuple[str, int], body: str, pose_rate: float) -> None:
+    def __init__(self, env: Any, uno: Any, pose_to: tuple[str, int], body: str, pose_rate: float,
+                 hardware: ServoHardware) -> None:
         self.env, self.uno, self.pose_to, self.body = env, uno, pose_to, body
+        self.hardware = hardware
         self.out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.dt = 1.0 / env.physics_hz
         self.pose_every = max(1, round(env.physics_hz / pose_rate))
@@ -138,8 +156,7 @@ class _World:
         if due <= self.substeps:
             return False
         self._track_emulator()
-        right_us, left_us = self.uno.widths()
-        command = (pulse_to_command(right_us, MOUNTING["right"]), pulse_to_command(left_us, MOUNTING["left"]))
+        command = self.hardware.commands(self.uno.widths())
         if command != self.command:  # the world's log: when the legs changed, to replay a trial exactly
             self.command = command
             print(f"legs {command[0]!r} {command[1]!r} from substep {self.substeps}", file=sys.stderr,
@@ -163,7 +180,8 @@ class _World:
 
 
 def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
-              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None) -> int:
+              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None,
+              hardware: ServoHardware | None = None) -> int:
     """The world process: real-time physics, mocap out, servo pulses in. Runs until
     SIGTERM/SIGINT or a ``quit`` control datagram."""
     from tumblebot.sim.env import TumblerEnv
@@ -176,7 +194,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
-    world = _World(env, uno, pose_to, body, pose_rate)
+    world = _World(env, uno, pose_to, body, pose_rate, hardware or ServoHardware())
     stop = {"now": False}
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -245,7 +263,8 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
 class TwinStack:
     """Starts the world and the agent as processes; the host is run against them."""
 
-    def __init__(self, workdir: Path, design: Design, seed: int, servo: Servo | None = None) -> None:
+    def __init__(self, workdir: Path, design: Design, seed: int, servo: Servo | None = None,
+                 world_args: list[str] | None = None) -> None:
         from tumblebot.host.link import new_key
 
         servo = servo or Servo()
@@ -264,7 +283,7 @@ class TwinStack:
             [sys.executable, "-m", "tumblebot.cli", "twin", "world", "--pose-to", f"127.0.0.1:{self.pose_port}",
              "--control", f"127.0.0.1:{self.control_port}", "--serial-link", str(self.serial_link),
              "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
-             "--motor-model", servo.model, "--stall-torque", repr(servo.stall_torque)],
+             "--motor-model", servo.model, "--stall-torque", repr(servo.stall_torque), *(world_args or [])],
             stdout=subprocess.PIPE, stderr=self.world_log, text=True)
         assert self.world.stdout is not None
         line = self.world.stdout.readline()

@@ -22,6 +22,9 @@ standard library only. Behaviour (docs/protocol.md has the wire formats):
 * a serial device that errors, or that sends no frame at all for 1 s, is closed and
   reopened with back-off (0.25 s doubling to 4 s); no serial input ever ends the agent
   (frames it cannot use are counted in ``serial_drops``);
+* forwards SET_TRIM to the Arduino (which stores it in EEPROM and answers INFO) only
+  while the robot is stopped, at most 2 a second; asks the Arduino for INFO (firmware
+  version and trims) after every boot, and reports both in telemetry's ``firmware``;
 * answers TELEMETRY_REQUEST (at most 20 a second) with a JSON telemetry datagram: link
   loss over the last 100 pings, datagram drops by reason, round-trip times, the
   firmware's last STATUS.
@@ -53,6 +56,8 @@ COMMAND_INTERVAL = 0.1  #: s, at most 10 commands per second
 KEEPALIVE_INTERVAL = 0.1  #: s, resend the current command to the Arduino
 PING_INTERVAL = 0.1  #: s between PINGs, whatever the command rate
 STATUS_INTERVAL = 1.0  #: s, ask the Arduino for its STATUS (reported in telemetry)
+INFO_INTERVAL = 0.5  #: s, ask the Arduino for its INFO (version, trims) until it answers
+TRIM_INTERVAL = 0.5  #: s, at most 2 SET_TRIMs a second (each one writes the Arduino's EEPROM)
 TELEMETRY_INTERVAL = 0.05  #: s, at most 20 telemetry replies per second
 SESSION_INTERVAL = 0.2  #: s, at most 5 SESSION replies per second
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
@@ -136,6 +141,9 @@ class SerialLink:
         self.pings: collections.deque[tuple[int, float, float | None]] = collections.deque(maxlen=100)
         self.ping_token = 0
         self.status: P.Status | None = None
+        self.ready_info: P.Ready | None = None  #: the last READY: the firmware's version at boot
+        self.info: P.Info | None = None  #: the last INFO: version and trims; None until asked in this epoch
+        self.last_info_request = -1e9
         self.reconnects = 0
         self.errors_reported: collections.Counter[str] = collections.Counter()
         self.drops: collections.Counter[str] = collections.Counter()  #: serial frames not used, by reason
@@ -184,6 +192,7 @@ class SerialLink:
         log.info("opened %s, waiting for READY", self.url)
         self.decoder = P.FrameDecoder()
         self.epoch = None
+        self.info = None
         self.opened_at = self.last_rx = now
 
     def _probe(self, now: float) -> None:
@@ -219,8 +228,12 @@ class SerialLink:
             else:
                 log.info("firmware epoch %d", frame.epoch)
             self.epoch = frame.epoch  # READY, and every reply, carries the live epoch
+            self.info = None  # another boot: ask again (its trims may differ)
         if frame.type == P.MsgType.READY:
             self.backoff = BACKOFF_MIN
+            self.ready_info = P.Ready.unpack(frame.payload)
+        elif frame.type == P.MsgType.INFO:
+            self.info = P.Info.unpack(frame.payload)
         elif frame.type == P.MsgType.PONG:
             token = P.unpack_token(frame.payload)
             for i, (t, sent, _) in enumerate(self.pings):
@@ -269,6 +282,22 @@ class SerialLink:
             self.last_speeds = now
         return sent
 
+    def request_info(self, now: float) -> None:
+        """Ask for INFO while this epoch's is unknown (at most every INFO_INTERVAL)."""
+        if self.ready and self.info is None and now - self.last_info_request >= INFO_INTERVAL:
+            self.last_info_request = now
+            self.send(P.MsgType.GET_INFO, b"", now)
+
+    def firmware(self) -> dict[str, Any] | None:
+        """What telemetry says of the firmware: protocol, version and trims (from INFO), or
+        only the version from READY when INFO has not come (a firmware before 1.1.0)."""
+        if self.info is not None:
+            return {"protocol": self.info.protocol, "version": self.info.version, "trims": self.info.trims()}
+        if self.ready_info is not None and self.ready:
+            r = self.ready_info
+            return {"protocol": r.protocol, "version": f"{r.major}.{r.minor}.{r.patch}", "trims": None}
+        return None
+
     def ping(self, now: float) -> None:
         self.ping_token = (self.ping_token + 1) & 0xFFFFFFFF
         if self.send(P.MsgType.PING, P.token_payload(self.ping_token), now):
@@ -288,6 +317,7 @@ class SerialLink:
             "serial_drops": {**{k.name: v for k, v in self.decoder.errors.items() if v and k != P.ErrorCode.OK},
                              **self.drops},
             "firmware_status": asdict(self.status) if self.status else None,
+            "firmware": self.firmware(),
             "speeds_gap_max_ms": round(1e3 * self.speeds_gap_max, 1),
         }
 
@@ -317,6 +347,8 @@ class Agent:
         self.last_ping = -1e9
         self.last_telemetry = -1e9
         self.last_session_reply = -1e9
+        self.last_trim = -1e9
+        self.trims_forwarded = 0
         now_ns = time.time_ns()
         self.epoch = now_ns // 1_000_000_000
         self.telemetry_counter = now_ns % 1_000_000_000
@@ -370,12 +402,26 @@ class Agent:
                 self._drop(P.DropReason.RATE_LIMITED, d.type)  # already stopped: the keepalive repeats it
             else:
                 self._apply((0, 0), now)  # a stop never waits for a slot
+        elif d.type == P.UdpType.SET_TRIM:
+            self._trim(d, now)
         elif d.type == P.UdpType.TELEMETRY_REQUEST:
             if now - self.last_telemetry < TELEMETRY_INTERVAL:
                 self._drop(P.DropReason.RATE_LIMITED, d.type)
                 return
             self.last_telemetry = now
             self._send_telemetry(source, P.unpack_nonce(d.payload), now)
+
+    def _trim(self, d: P.Datagram, now: float) -> None:
+        """Forward a SET_TRIM, only at rest and at most every TRIM_INTERVAL (EEPROM writes)."""
+        if self.command != (0, 0) or self.pending is not None:
+            self._drop(P.DropReason.BUSY, d.type)  # a trim changes the pulses: only at rest
+        elif now - self.last_trim < TRIM_INTERVAL:
+            self._drop(P.DropReason.RATE_LIMITED, d.type)
+        else:
+            self.last_trim = now
+            if self.link.send(P.MsgType.SET_TRIM, d.payload, now):  # the firmware answers INFO
+                self.trims_forwarded += 1
+                self.link.info = None
 
     def _apply(self, command: tuple[int, int], now: float) -> None:
         self.command = command
@@ -395,6 +441,7 @@ class Agent:
         body = {"nonce": nonce, "command": list(self.command), "accepted": self.accepted,
                 "host_timeouts": self.host_timeouts, "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
                 "senders": len(self.guard), "senders_evicted": self.guard.evicted,
+                "trims_forwarded": self.trims_forwarded,
                 **self.link.telemetry(now)}
         self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
 
@@ -426,6 +473,7 @@ class Agent:
         if now - self.last_status_request >= STATUS_INTERVAL and self.link.ready:
             self.last_status_request = now
             self.link.send(P.MsgType.GET_STATUS, b"", now)
+        self.link.request_info(now)
 
     def run(self, stop: Callable[[], bool] = lambda: False) -> None:
         log.info("listening on %s:%d for %s", *self.address, self.config.allowed_host)

@@ -43,9 +43,11 @@ class MsgType(enum.IntEnum):
     PING = 0x02  #: payload: token u32
     SET_TRIM = 0x03  #: payload: servo u8 (0 right, 1 left), neutral_us u16, direction i8 (±1)
     GET_STATUS = 0x04  #: no payload
+    GET_INFO = 0x05  #: no payload; answered with INFO
     READY = 0x80  #: payload: protocol u8, firmware major u8, minor u8, patch u8
     PONG = 0x81  #: payload: token u32
     STATUS = 0x82  #: payload: see :class:`Status`
+    INFO = 0x83  #: payload: see :class:`Info` (versions and the trims in force)
     ERROR = 0x8F  #: payload: code u8, offending seq u16
 
 
@@ -69,6 +71,7 @@ TOKEN_STRUCT = struct.Struct("<I")
 TRIM_STRUCT = struct.Struct("<BHb")
 READY_STRUCT = struct.Struct("<BBBB")
 STATUS_STRUCT = struct.Struct("<IbbBHHHHH")
+INFO_STRUCT = struct.Struct("<BBBBHbHb")
 ERROR_STRUCT = struct.Struct("<BH")
 NEUTRAL_MIN_US, NEUTRAL_MAX_US = 1300, 1700
 
@@ -89,9 +92,11 @@ MESSAGES: dict[MsgType, MessageSpec] = {m.type: m for m in (
     MessageSpec(MsgType.PING, "to_firmware", TOKEN_STRUCT.size),
     MessageSpec(MsgType.SET_TRIM, "to_firmware", TRIM_STRUCT.size),
     MessageSpec(MsgType.GET_STATUS, "to_firmware", 0),
+    MessageSpec(MsgType.GET_INFO, "to_firmware", 0),
     MessageSpec(MsgType.READY, "to_agent", READY_STRUCT.size),
     MessageSpec(MsgType.PONG, "to_agent", TOKEN_STRUCT.size),
     MessageSpec(MsgType.STATUS, "to_agent", STATUS_STRUCT.size),
+    MessageSpec(MsgType.INFO, "to_agent", INFO_STRUCT.size),
     MessageSpec(MsgType.ERROR, "to_agent", ERROR_STRUCT.size),
 )}
 #: Payload sizes by type (exact), from the table.
@@ -211,9 +216,7 @@ def decode_body(encoded: bytes) -> Frame:
     if kind is MsgType.SET_SPEEDS and any(v not in (-1, 0, 1) for v in SET_SPEEDS_STRUCT.unpack(payload)):
         raise FrameError(ErrorCode.BAD_PAYLOAD, "speeds must be -1, 0 or +1")
     if kind is MsgType.SET_TRIM:
-        servo, neutral, direction = TRIM_STRUCT.unpack(payload)
-        if servo > 1 or not NEUTRAL_MIN_US <= neutral <= NEUTRAL_MAX_US or direction not in (-1, 1):
-            raise FrameError(ErrorCode.BAD_PAYLOAD, "trim: servo 0/1, neutral 1300..1700 us, direction ±1")
+        check_trim(*unpack_trim(payload))
     return Frame(epoch, seq, mtype, bytes(payload), version)
 
 
@@ -278,8 +281,26 @@ def unpack_token(payload: bytes) -> int:
     return int(TOKEN_STRUCT.unpack(payload)[0])
 
 
+SERVOS = ("right", "left")  #: servo numbers on both links: 0 right (D9), 1 left (D10)
+
+
+def check_trim(servo: int, neutral_us: int, direction: int) -> None:
+    """Raise :class:`FrameError` unless this is a trim the firmware accepts."""
+    if servo not in (0, 1) or not NEUTRAL_MIN_US <= neutral_us <= NEUTRAL_MAX_US or direction not in (-1, 1):
+        raise FrameError(ErrorCode.BAD_PAYLOAD, f"trim: servo 0 (right) or 1 (left), neutral {NEUTRAL_MIN_US}.."
+                                                f"{NEUTRAL_MAX_US} us, direction +1 or -1; got {servo}, "
+                                                f"{neutral_us}, {direction}")
+
+
 def trim_payload(servo: int, neutral_us: int, direction: int) -> bytes:
+    """SET_TRIM payload (the serial frame's and the UDP datagram's)."""
+    check_trim(servo, neutral_us, direction)
     return TRIM_STRUCT.pack(servo, neutral_us, direction)
+
+
+def unpack_trim(payload: bytes) -> tuple[int, int, int]:
+    servo, neutral, direction = TRIM_STRUCT.unpack(payload)
+    return int(servo), int(neutral), int(direction)
 
 
 @dataclass(frozen=True)
@@ -297,6 +318,37 @@ class Ready:
 
     def pack(self) -> bytes:
         return READY_STRUCT.pack(self.protocol, self.major, self.minor, self.patch)
+
+
+@dataclass(frozen=True)
+class Info:
+    """INFO payload (10 bytes): the firmware's protocol and version, and the trims it holds
+    (EEPROM), per servo (right, left): neutral pulse in µs and direction (±1)."""
+
+    protocol: int
+    major: int
+    minor: int
+    patch: int
+    neutral_us: tuple[int, int]
+    direction: tuple[int, int]
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> Info:
+        protocol, major, minor, patch, rn, rd, ln, ld = INFO_STRUCT.unpack(payload)
+        return cls(protocol, major, minor, patch, (rn, ln), (rd, ld))
+
+    def pack(self) -> bytes:
+        return INFO_STRUCT.pack(self.protocol, self.major, self.minor, self.patch, self.neutral_us[0],
+                                self.direction[0], self.neutral_us[1], self.direction[1])
+
+    @property
+    def version(self) -> str:
+        return f"{self.major}.{self.minor}.{self.patch}"
+
+    def trims(self) -> dict[str, dict[str, int]]:
+        """``{"right": {"neutral_us": …, "direction": …}, "left": …}``, as telemetry carries them."""
+        return {name: {"neutral_us": self.neutral_us[i], "direction": self.direction[i]}
+                for i, name in enumerate(SERVOS)}
 
 
 @dataclass(frozen=True)
@@ -369,6 +421,7 @@ class UdpType(enum.IntEnum):
     STOP = 0x11  #: no payload
     TELEMETRY_REQUEST = 0x12  #: payload: nonce u32
     HELLO = 0x13  #: payload: nonce u64; asks for the agent's session id
+    SET_TRIM = 0x14  #: payload: as the serial SET_TRIM (servo u8, neutral_us u16, direction i8)
     TELEMETRY = 0x90  #: payload: UTF-8 JSON object
     SESSION = 0x91  #: payload: the HELLO's nonce u64, session id 8 bytes
 
@@ -376,7 +429,8 @@ class UdpType(enum.IntEnum):
 #: Exact payload sizes (None: any size up to the datagram limit).
 UDP_PAYLOAD_SIZES: dict[UdpType, int | None] = {
     UdpType.COMMAND: COMMAND_STRUCT.size, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: NONCE_STRUCT.size,
-    UdpType.HELLO: HELLO_STRUCT.size, UdpType.TELEMETRY: None, UdpType.SESSION: SESSION_STRUCT.size,
+    UdpType.HELLO: HELLO_STRUCT.size, UdpType.SET_TRIM: TRIM_STRUCT.size,
+    UdpType.TELEMETRY: None, UdpType.SESSION: SESSION_STRUCT.size,
 }
 TO_AGENT: frozenset[UdpType] = frozenset(t for t in UdpType if t < 0x80)
 TO_HOST: frozenset[UdpType] = frozenset(t for t in UdpType if t >= 0x80)
@@ -393,6 +447,7 @@ class DropReason(enum.Enum):
     STALE = "stale"  #: an epoch older than the newest seen from this sender
     REPLAYED = "replayed"  #: counter not above the last one seen for this sender and epoch
     RATE_LIMITED = "rate_limited"  #: over a message type's rate limit, or superseded within the 100 ms slot
+    BUSY = "busy"  #: a SET_TRIM while the robot is commanded to move (trims change only at rest)
 
 
 class DatagramError(ProtocolError):
@@ -502,6 +557,11 @@ def decode_datagram(data: bytes, keys: LinkKeys, accept: frozenset[UdpType]) -> 
         raise DatagramError(DropReason.MALFORMED, f"{kind.name} payload of {len(payload)} bytes, expected {size}")
     if kind is UdpType.COMMAND and any(v not in (-1, 0, 1) for v in COMMAND_STRUCT.unpack(payload)):
         raise DatagramError(DropReason.OUT_OF_RANGE, "speeds must be -1, 0 or +1")
+    if kind is UdpType.SET_TRIM:
+        try:
+            check_trim(*unpack_trim(payload))
+        except FrameError as exc:
+            raise DatagramError(DropReason.OUT_OF_RANGE, str(exc)) from None
     return Datagram(dtype, sender, epoch, counter, payload, version)
 
 

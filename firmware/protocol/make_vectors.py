@@ -12,10 +12,11 @@ Line format (hex strings, ``-`` for empty)::
     reject BODY ERROR_NAME                  (BODY is one frame without its delimiter)
     msg    TYPE DIRECTION SIZE              (the serial message table; DIRECTION to_firmware or to_agent)
     status UPTIME RIGHT LEFT FLAGS OK CRC OTHER TRIPS LASTSEQ PAYLOAD
+    info   PROTOCOL MAJOR MINOR PATCH RIGHT_NEUTRAL RIGHT_DIR LEFT_NEUTRAL LEFT_DIR PAYLOAD
     udpkey KEY SESSION HELLO TO_AGENT TO_HOST          (the derived keys of a session)
     udp    NAME KEY SESSION TYPE SENDER EPOCH COUNTER PAYLOAD WIRE
 
-The C++ suite checks the serial rows (crc, cobs, frame, reject, msg, status); the UDP
+The C++ suite checks the serial rows (crc, cobs, frame, reject, msg, status, info); the UDP
 rows are Python's alone, since the firmware has no UDP side.
 """
 
@@ -32,6 +33,7 @@ from tumblebot.pi_agent.protocol import (
     ErrorCode,
     ErrorReport,
     Frame,
+    Info,
     LinkKeys,
     MsgType,
     Status,
@@ -76,9 +78,11 @@ def main() -> None:
         Frame(0xBEEF, 42, MsgType.PING, token_payload(0xDEADBEEF)),
         Frame(3, 1, MsgType.SET_TRIM, trim_payload(1, 1512, -1)),
         Frame(3, 2, MsgType.GET_STATUS, b""),
+        Frame(3, 3, MsgType.GET_INFO, b""),
         Frame(0x0A0B, 0, MsgType.READY, bytes([1, 0, 1, 0])),
         Frame(0x0A0B, 5, MsgType.PONG, token_payload(0xDEADBEEF)),
         Frame(0x0A0B, 6, MsgType.STATUS, Status(123456, 1, -1, 3, 1000, 2, 3, 4, 999).pack()),
+        Frame(0x0A0B, 8, MsgType.INFO, Info(1, 1, 1, 0, (1512, 1490), (1, -1)).pack()),
         Frame(0x0A0B, 7, MsgType.ERROR, ErrorReport(ErrorCode.OLD_SEQUENCE, 41).pack()),
     ]
     for f in frames:
@@ -108,6 +112,10 @@ def main() -> None:
                                            status.crc_errors, status.other_drops, status.watchdog_trips,
                                            status.last_seq))
         lines.append(f"status {fields} {h(status.pack())}")
+    for info in (Info(1, 1, 1, 0, (1500, 1500), (1, -1)), Info(1, 2, 0, 255, (1300, 1700), (-1, 1))):
+        fields = " ".join(str(v) for v in (info.protocol, info.major, info.minor, info.patch, info.neutral_us[0],
+                                           info.direction[0], info.neutral_us[1], info.direction[1]))
+        lines.append(f"info {fields} {h(info.pack())}")
     udp_key = bytes(range(32))
     sessions = (bytes(8), bytes.fromhex("0123456789abcdef"))
     for session in sessions:
@@ -117,6 +125,7 @@ def main() -> None:
         ("command", Datagram(UdpType.COMMAND, 1, 1_700_000_000, 123_456_789, command_payload(1, -1))),
         ("stop", Datagram(UdpType.STOP, 1, 1_700_000_000, 123_456_790)),
         ("telemetry_request", Datagram(UdpType.TELEMETRY_REQUEST, 7, 5, 1, nonce_payload(0xDEADBEEF))),
+        ("set_trim", Datagram(UdpType.SET_TRIM, 1, 1_700_000_000, 123_456_791, trim_payload(0, 1512, 1))),
         ("hello", Datagram(UdpType.HELLO, 1, 1_700_000_000, 2, hello_payload(0x0102030405060708))),
         ("telemetry", Datagram(UdpType.TELEMETRY, 1, 1_700_000_001, 99, b'{"nonce":1}')),
         ("session", Datagram(UdpType.SESSION, 1, 1_700_000_001, 100,

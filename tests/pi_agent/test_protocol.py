@@ -139,6 +139,10 @@ def test_that_the_direction_keys_differ() -> None:
     (P.Datagram(0x55, 7, 100, 1), P.DropReason.MALFORMED),
     (P.Datagram(P.UdpType.COMMAND, 7, 100, 1, b"\x01"), P.DropReason.MALFORMED),
     (P.Datagram(P.UdpType.HELLO, 7, 100, 1, b"\x01"), P.DropReason.MALFORMED),
+    (P.Datagram(P.UdpType.SET_TRIM, 7, 100, 1, P.TRIM_STRUCT.pack(2, 1500, 1)), P.DropReason.OUT_OF_RANGE),
+    (P.Datagram(P.UdpType.SET_TRIM, 7, 100, 1, P.TRIM_STRUCT.pack(0, 1299, 1)), P.DropReason.OUT_OF_RANGE),
+    (P.Datagram(P.UdpType.SET_TRIM, 7, 100, 1, P.TRIM_STRUCT.pack(0, 1500, 0)), P.DropReason.OUT_OF_RANGE),
+    (P.Datagram(P.UdpType.SET_TRIM, 7, 100, 1, b"\x00\xdc\x05"), P.DropReason.MALFORMED),
 ])
 def test_that_authenticated_but_bad_datagrams_are_refused(datagram: P.Datagram, reason: P.DropReason) -> None:
     assert refused(P.encode_datagram(datagram, KEYS)) is reason
@@ -207,3 +211,11 @@ def test_status_vectors(row: list[str]) -> None:
     *fields, payload = row
     status = P.Status(*map(int, fields))
     assert status.pack() == unhex(payload) and P.Status.unpack(unhex(payload)) == status
+
+
+@pytest.mark.parametrize("row", vectors("info"))
+def test_info_vectors(row: list[str]) -> None:
+    protocol, major, minor, patch, rn, rd, ln, ld, payload = row
+    info = P.Info(int(protocol), int(major), int(minor), int(patch), (int(rn), int(ln)), (int(rd), int(ld)))
+    assert info.pack() == unhex(payload) and P.Info.unpack(unhex(payload)) == info
+    assert info.trims()["left"] == {"neutral_us": int(ln), "direction": int(ld)}

@@ -166,9 +166,35 @@ TEST_CASE("trims are applied, persisted and reported") {
   feed(c, wire(MsgType::SetTrim, {1, 0xF0, 0x05, 0x01}, 2), 0);  // left: neutral 1520, direction +1
   CHECK(port.trimSaves == 2);
   CHECK(port.saved.neutralUs[kLeft] == 1520);
+  auto replies = port.frames();  // each SET_TRIM is answered with INFO: the trims now in force
+  REQUIRE(replies.size() == 2);
+  CHECK(replies[1].type == static_cast<uint8_t>(MsgType::Info));
+  CHECK(getU16(replies[1].payload + 4) == 1500);
+  CHECK(static_cast<int8_t>(replies[1].payload[6]) == -1);
+  CHECK(getU16(replies[1].payload + 7) == 1520);
+  CHECK(static_cast<int8_t>(replies[1].payload[9]) == 1);
   feed(c, speeds(1, 1, 3), 1);
   CHECK(c.pulseUs(kRight) == 1000);
   CHECK(c.pulseUs(kLeft) == 2020);
+}
+
+TEST_CASE("GET_INFO tells the versions and the trims in force") {
+  FakePort port;
+  Controller c(kEpoch, Trim{}, port);
+  feed(c, wire(MsgType::GetInfo, {}, 1), 0);
+  auto replies = port.frames();
+  REQUIRE(replies.size() == 1);
+  CHECK(replies[0].type == static_cast<uint8_t>(MsgType::Info));
+  CHECK(replies[0].payload[0] == kProtocolVersion);
+  CHECK(replies[0].payload[1] == kFirmwareMajor);
+  CHECK(replies[0].payload[2] == kFirmwareMinor);
+  CHECK(replies[0].payload[3] == kFirmwarePatch);
+  CHECK(getU16(replies[0].payload + 4) == 1500);
+  CHECK(static_cast<int8_t>(replies[0].payload[6]) == 1);
+  CHECK(getU16(replies[0].payload + 7) == 1500);
+  CHECK(static_cast<int8_t>(replies[0].payload[9]) == -1);
+  CHECK(c.speed(kRight) == 0);  // asking never arms
+  CHECK_FALSE(c.armed());
 }
 
 TEST_CASE("random bytes never actuate and are all counted") {

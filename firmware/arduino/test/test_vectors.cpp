@@ -140,3 +140,22 @@ TEST_CASE("STATUS payloads pack to the shared bytes") {
     CHECK(Bytes(out, out + StatusPayload::kSize) == unhex(r[9]));
   }
 }
+
+TEST_CASE("INFO payloads pack to the shared bytes") {
+  const auto infos = rows("info");
+  REQUIRE_FALSE(infos.empty());
+  for (const auto& r : infos) {
+    InfoPayload info;
+    info.protocol = static_cast<uint8_t>(std::stoi(r[0]));
+    info.major = static_cast<uint8_t>(std::stoi(r[1]));
+    info.minor = static_cast<uint8_t>(std::stoi(r[2]));
+    info.patch = static_cast<uint8_t>(std::stoi(r[3]));
+    info.neutralUs[0] = static_cast<uint16_t>(std::stoi(r[4]));
+    info.direction[0] = static_cast<int8_t>(std::stoi(r[5]));
+    info.neutralUs[1] = static_cast<uint16_t>(std::stoi(r[6]));
+    info.direction[1] = static_cast<int8_t>(std::stoi(r[7]));
+    uint8_t out[InfoPayload::kSize];
+    info.pack(out);
+    CHECK(Bytes(out, out + InfoPayload::kSize) == unhex(r[8]));
+  }
+}

@@ -6,7 +6,7 @@ namespace tumble {
 
 constexpr uint8_t kProtocolVersion = 1;
 constexpr uint8_t kFirmwareMajor = 1;
-constexpr uint8_t kFirmwareMinor = 0;
+constexpr uint8_t kFirmwareMinor = 1;
 constexpr uint8_t kFirmwarePatch = 0;
 
 constexpr uint32_t kBaudRate = 115200;          // serial link, 8N1

@@ -91,11 +91,14 @@ void Controller::handle(const Frame& frame, uint32_t nowMs) {
       trim_.neutralUs[servo] = getU16(frame.payload + 1);
       trim_.direction[servo] = static_cast<int8_t>(frame.payload[3]);
       port_.saveTrim(trim_);
-      sendStatus(nowMs);
+      sendInfo();
       return;
     }
     case MsgType::GetStatus:
       sendStatus(nowMs);
+      return;
+    case MsgType::GetInfo:
+      sendInfo();
       return;
     default:
       return;  // unreachable: decodeBody refuses unknown types
@@ -116,6 +119,17 @@ void Controller::sendStatus(uint32_t nowMs) {
   uint8_t p[StatusPayload::kSize];
   status.pack(p);
   send(MsgType::Status, p, sizeof p);
+}
+
+void Controller::sendInfo() {
+  InfoPayload info;
+  for (uint8_t s = 0; s < 2; ++s) {
+    info.neutralUs[s] = trim_.neutralUs[s];
+    info.direction[s] = trim_.direction[s];
+  }
+  uint8_t p[InfoPayload::kSize];
+  info.pack(p);
+  send(MsgType::Info, p, sizeof p);
 }
 
 void Controller::send(MsgType type, const uint8_t* payload, uint8_t len) {

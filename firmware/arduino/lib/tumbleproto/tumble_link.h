@@ -59,6 +59,7 @@ class Controller {
   void refuse(Error error, uint16_t seq, bool reply);
   void send(MsgType type, const uint8_t* payload, uint8_t len);
   void sendStatus(uint32_t nowMs);
+  void sendInfo();
 
   uint16_t epoch_;
   Trim trim_;

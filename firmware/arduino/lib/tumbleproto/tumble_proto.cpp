@@ -74,9 +74,11 @@ int payloadSize(uint8_t type) {
     case MsgType::Ping: return 4;
     case MsgType::SetTrim: return 4;
     case MsgType::GetStatus: return 0;
+    case MsgType::GetInfo: return 0;
     case MsgType::Ready: return 4;
     case MsgType::Pong: return 4;
     case MsgType::Status: return StatusPayload::kSize;
+    case MsgType::Info: return InfoPayload::kSize;
     case MsgType::Error: return 3;
   }
   return -1;
@@ -92,6 +94,17 @@ void StatusPayload::pack(uint8_t* p) const {
   putU16(p + 11, otherDrops);
   putU16(p + 13, watchdogTrips);
   putU16(p + 15, lastSeq);
+}
+
+void InfoPayload::pack(uint8_t* p) const {
+  p[0] = protocol;
+  p[1] = major;
+  p[2] = minor;
+  p[3] = patch;
+  putU16(p + 4, neutralUs[0]);
+  p[6] = static_cast<uint8_t>(direction[0]);
+  putU16(p + 7, neutralUs[1]);
+  p[9] = static_cast<uint8_t>(direction[1]);
 }
 
 size_t encodeFrame(const Frame& frame, uint8_t* out) {

@@ -15,9 +15,11 @@ enum class MsgType : uint8_t {
   Ping = 0x02,       // token u32
   SetTrim = 0x03,    // servo u8 (0 right, 1 left), neutral_us u16, direction i8 (+-1)
   GetStatus = 0x04,  // no payload
+  GetInfo = 0x05,    // no payload; answered with INFO
   Ready = 0x80,      // protocol u8, firmware major u8, minor u8, patch u8
   Pong = 0x81,       // token u32
   Status = 0x82,     // 17 bytes, see StatusPayload
+  Info = 0x83,       // 10 bytes, see InfoPayload: versions and the trims in force
   Error = 0x8F,      // code u8, offending seq u16
 };
 
@@ -72,6 +74,19 @@ struct StatusPayload {
   uint16_t lastSeq = 0;
   static constexpr uint8_t kSize = 17;
   void pack(uint8_t* out) const;  // out: kSize bytes
+};
+
+// INFO payload (10 bytes, little-endian): what the firmware is and the trims it holds.
+struct InfoPayload {
+  uint8_t protocol = kProtocolVersion;
+  uint8_t major = kFirmwareMajor;
+  uint8_t minor = kFirmwareMinor;
+  uint8_t patch = kFirmwarePatch;
+  uint16_t neutralUs[2] = {kNeutralUs, kNeutralUs};  // right, left
+  int8_t direction[2] = {1, -1};
+  static constexpr uint8_t kSize = 10;
+  void pack(uint8_t* out) const;  // out: kSize bytes: protocol, major, minor, patch, right neutral u16,
+                                  // right direction i8, left neutral u16, left direction i8
 };
 
 // Frame -> wire bytes including the trailing 0x00 (out capacity >= kMaxWire). 0 if too long.
