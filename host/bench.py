@@ -59,6 +59,10 @@ STOPPED_MOVE, STOPPED_TURN = 0.05, math.radians(20.0)
 SILENCE_SECONDS = 2.5  #: s the host stays silent in the watchdog check (the agent stops after 1 s)
 
 
+TRIM_DOC = "docs/robot-link.md, 'Trimming a servo'"
+FRAME_DOC = "docs/robot-link.md, 'The motion-capture frame'"
+
+
 class BenchError(TumblebotError):
     """A bench command cannot run (bad arguments, an agent that does not answer)."""
 
@@ -281,8 +285,8 @@ def _trim_check(trims: dict[str, dict[str, int]] | None, expected: tuple[int, in
     if off:
         servo = off[0].split()[0]
         return Check("trims", False, f"{format_trims(trims)}: " + "; ".join(off) + " (that servo creeps when stopped)",
-                     f"find its neutral (docs: 'Trimming a servo') and set it: tumblebot trim --servo {servo} "
-                     "--neutral US")
+                     f"find its neutral ({TRIM_DOC}) and set it: "
+                     f"tumblebot trim --servo {servo} --neutral US")
     against = "the lab's" if expected is not None else f"within ±{NEUTRAL_SPREAD_US} µs of nominal"
     return Check("trims", True, f"{format_trims(trims)} ({against})")
 
@@ -295,7 +299,8 @@ def _mocap_check(bench: Bench) -> Check:
                      "is the rigid body tracked, and named as in the URL's ?body=?")
     rate = (len(poses) - 1) / max(poses[-1].t - poses[0].t, 1e-3)
     level, face, tilt = resting_frame(poses[-1])
-    fix = "define the rigid body with x toward the right leg and z up when the robot lies flat (docs: 'Motion capture')"
+    fix = ("define the rigid body with x toward the right leg and z up when the robot lies flat "
+           f"({FRAME_DOC})")
     if level > LEVEL_TOLERANCE:
         return Check("mocap", False, f"the rigid body's x axis is {math.degrees(level):.0f}° from level, but the "
                                      "robot's leg axis is level on the floor", fix)
@@ -317,7 +322,7 @@ def _wait_until_at_rest(bench: Bench, timeout: float = 5.0) -> None:
 
 
 def _still_check(bench: Bench) -> Check:
-    fix = "a servo creeps: its neutral trim is off; find it with tumblebot trim (docs: 'Trimming a servo')"
+    fix = f"a servo creeps: its neutral trim is off; find it with tumblebot trim ({TRIM_DOC})"
     if bench.source is None:
         if bench.ask is None:
             return Check("still", None, "not checked: needs --mocap or an operator at a terminal")
@@ -371,8 +376,8 @@ def _servo_check(bench: Bench, trims: dict[str, dict[str, int]] | None) -> Check
     if measured and all(verdicts[s] == ["reversed", "reversed"] for s in SERVOS):
         return Check("servos", False, "both servos look reversed: more likely the rigid body's x axis points to the "
                                       "left leg (the roll about x changes sign)",
-                     "define the rigid body with x toward the right leg (docs: 'Motion capture'); if it is, "
-                     "flip both directions with tumblebot trim")
+                     f"define the rigid body with x toward the right leg ({FRAME_DOC}); if it is, flip both "
+                     "directions with tumblebot trim")
     problems, fixes = [], []
     for servo in SERVOS:
         v = verdicts[servo]

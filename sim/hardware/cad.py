@@ -131,8 +131,38 @@ def write_assembly(solids: list[Solid], step: Path, glb: Path) -> None:
     export_gltf(robot, str(glb), binary=True)
 
 
-def render_png(glb: Path, png: Path, title: str) -> None:
-    """A shaded picture of the assembly from the glTF mesh (matplotlib, no screen needed)."""
+#: The assembly guide's pictures: file, the solids it shows (name prefixes), its title.
+ASSEMBLY_STEPS: tuple[tuple[str, tuple[str, ...], str], ...] = (
+    ("assembly-1.png", ("rod_", "nut"), "steps 1–2: rods cut, inner nuts set"),
+    ("assembly-2.png", ("side_plate_right", "motor_mount_right", "servo_right"),
+     "step 3: mount and servo on a plate, seen from inside"),
+    ("assembly-3.png", ("rod_", "nut", "side_plate", "motor_mount", "servo"), "step 4: plates on the rods"),
+    ("assembly-4.png", ("rod_", "nut", "side_plate", "motor_mount", "servo", "electronics"),
+     "step 5: the electronics board"),
+)
+
+
+def render_steps(glb: Path, out: Path) -> list[str]:
+    """One picture per step of :data:`ASSEMBLY_STEPS` (the last step is ``robot.png``), at
+    the whole robot's scale; returns the file names."""
+    for k, (name, keep, title) in enumerate(ASSEMBLY_STEPS):
+        render_png(glb, out / name, title, keep, inside=k == 1)
+    return [name for name, _, _ in ASSEMBLY_STEPS]
+
+
+def _base_colour(mesh: Any) -> np.ndarray:
+    """A mesh's colour for the picture: glTF keeps base colours linear, the picture is sRGB."""
+    material = getattr(mesh.visual, "material", None)
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is None:
+        return np.full(3, 0.6)
+    return np.clip(np.asarray(factor[:3], dtype=float) / 255.0, 0.0, 1.0) ** (1 / 2.2)
+
+
+def render_png(glb: Path, png: Path, title: str, keep: tuple[str, ...] | None = None, inside: bool = False) -> None:
+    """A shaded picture of the assembly from the glTF mesh (matplotlib, no screen needed);
+    ``keep``: only the solids whose names start so (the axes stay the whole robot's);
+    ``inside``: looking at the right plate from the body's inside, close up."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -144,7 +174,10 @@ def render_png(glb: Path, png: Path, title: str) -> None:
     fig = plt.figure(figsize=(6, 5), dpi=120)
     ax = fig.add_subplot(projection="3d")
     light = np.array([0.4, -0.5, 0.77])
+    triangles, colours = [], []
     for name, geom in scene.geometry.items():
+        if keep is not None and not name.startswith(keep):
+            continue
         mesh = geom.copy()
         mesh.apply_transform(scene.graph.get(scene.graph.geometry_nodes[name][0])[0])
         tri = mesh.vertices[mesh.faces][:, :, [0, 2, 1]]  # glTF y-up → z-up for the picture
@@ -152,16 +185,20 @@ def render_png(glb: Path, png: Path, title: str) -> None:
         normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         norm = np.linalg.norm(normals, axis=1, keepdims=True)
         shade = 0.35 + 0.65 * np.abs((normals / np.maximum(norm, 1e-12)) @ light)
-        colour = mesh.visual.main_color[:3] / 255.0 if hasattr(mesh.visual, "main_color") else np.full(3, 0.6)
-        ax.add_collection3d(Poly3DCollection(tri, facecolors=shade[:, None] * colour, linewidths=0))
+        triangles.append(tri)
+        colours.append(shade[:, None] * _base_colour(mesh))
+    # one collection, so that matplotlib orders the faces of all parts by depth together
+    ax.add_collection3d(Poly3DCollection(np.concatenate(triangles), facecolors=np.concatenate(colours), linewidths=0))
     lo, hi = scene.bounds[0][[0, 2, 1]], scene.bounds[1][[0, 2, 1]]
+    if inside:
+        lo[0] = hi[0] - (hi[1] - lo[1])  # the right plate's end of the body, as deep as the plate is wide
     span = float(max(hi - lo)) / 2
     mid = (lo + hi) / 2
     ax.set_xlim(mid[0] - span, mid[0] + span)
     ax.set_ylim(-mid[1] - span, -mid[1] + span)
     ax.set_zlim(mid[2] - span, mid[2] + span)
     ax.set_box_aspect((1, 1, 1))
-    ax.view_init(elev=22, azim=-58)
+    ax.view_init(elev=22, azim=150 if inside else -58)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")

@@ -111,14 +111,22 @@ engraved face is the outside), `motor_mount` twice and `leg` twice from 3 mm Del
    from each end (the nut's outer face at that distance), so that the plates sit
    {mass.rod_overhang * 1e3:g} mm in from the rod ends; the inner faces of the two plates are then
    {x - 2 * (mass.rod_overhang + mass.plate_thickness) * 1e3:.1f} mm apart.
+
+   ![steps 1-2](assembly-1.png)
 3. Put a motor mount on the inner face of each plate over the cut-out, push a servo in from the
    inside (its flange on the mount, the output shaft through the plate's centre) and fix it with
    its screws through the flange, the mount and the plate.
+
+   ![step 3](assembly-2.png)
 4. Slide the plates onto the rods (engraved faces out), then a washer and a jam nut on each rod
    end outside: the rod end is flush with the jam nut, {mass.rod_overhang * 1e3:g} mm outside the
    plate. Square the frame, tighten the nuts against the plates.
+
+   ![step 4](assembly-3.png)
 5. Strap the electronics board between the rods at the body's centre with cable ties, the Uno's
    USB socket reachable.
+
+   ![step 5](assembly-4.png)
 6. Legs: set each servo to neutral (below), put the horn on the spline, then fix the leg to the
    horn with the horn's centre screw through the leg's axis hole and one small self-tapping screw
    through the leg's second hole into the horn's arm. Both legs point the same way. As built, the
@@ -143,14 +151,25 @@ optimiser with its mass in the model.
 Build and flash the Uno from this repository: `make -C firmware/arduino flash PORT=/dev/ttyACM0`
 (needs Debian's `avrdude`, which `./dev.sh` installs), or `pio run -e uno -t upload`.
 
-## 6. Servo neutral
+## 6. Servo neutral and direction
 
-A continuous-rotation servo creeps when its neutral pulse is off. With the firmware running and
-the robot stopped, turn the servo's neutral trimmer (the small potentiometer in its case) until the
-output no longer turns; the firmware also keeps a per-servo neutral and direction in EEPROM
-(the serial protocol's `SET_TRIM` message).
+A continuous-rotation servo creeps when its neutral pulse is off. With the agent running and the
+robot stopped, show the trims the Uno holds, `tumblebot trim --agent PI:47800 --key KEY`, and, for a
+servo whose leg creeps, move its neutral in 5 µs steps until the leg stays still for 10 s
+(`tumblebot trim ... --servo right --nudge -5`: lower the neutral when the right leg creeps forward,
+raise it when it creeps backward; the left servo is mirrored, so the other way round). A servo with
+a neutral trimmer (a small potentiometer in its case) can be set with it instead, at 1500 µs. If a
+leg turns backward when told forward, flip that servo's direction (`--direction`). The Uno keeps
+the trims in EEPROM.
 
-## 7. Motion capture
+## 7. Check before trials
+
+`tumblebot bench check --agent PI:47800 --key KEY --mocap URL` checks the agent, the Uno, the trims,
+the motion capture frame, that the robot keeps still when stopped, that each servo turns both ways
+and that the legs stop when the host falls silent, one line each. The robot moves: give it 0.5 m of
+clear floor.
+
+## 8. Motion capture
 
 Stick {MARKER_DIAMETER:g} mm flat-based hemispherical markers on the engraved spots (three on the right
 plate, two on the left: the set is asymmetric, so the pose is unique). Their base centres in the

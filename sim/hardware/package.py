@@ -126,6 +126,7 @@ def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str
     props = cad.mass_properties(solids)
     cad.write_assembly(solids, out / "robot.step", out / "robot.glb")
     cad.render_png(out / "robot.glb", out / "robot.png", f"tumblebot {w}")
+    steps = cad.render_steps(out / "robot.glb", out)
     progress("wiring diagram and assembly guide")
     write_wiring(out, mass.servo)
     urdf = urdf_mass_properties(RobotModel.from_design(w, mass))
@@ -137,7 +138,7 @@ def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str
         "cad_mass_error": props["mass"] / mass.total_mass(w) - 1,
         "leg_plane_mm": dict(zip(("built", "simulated"), leg_plane_offset(mass), strict=True)),
         "battery_allowance_kg": battery_allowance(w, mass),
-        "files": ["bom.csv", "bom.md", "assembly.md", "markers.csv", "robot.step", "robot.glb", "robot.png",
+        "files": ["bom.csv", "bom.md", "assembly.md", "markers.csv", "robot.step", "robot.glb", "robot.png", *steps,
                   "wiring.svg", "wiring.png",
                   *sorted(f"cut/{p.name}.{ext}" for p in parts for ext in ("dxf", "svg"))],
     }

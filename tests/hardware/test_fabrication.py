@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -85,6 +86,9 @@ def test_that_the_package_has_every_file_and_its_bom_total_is_the_power_models_m
     record = json.loads((out / "package.json").read_text())
     for name in record["files"]:
         assert (out / name).stat().st_size > 0, name
+    pictures = re.findall(r"!\[[^]]*\]\(([^)]+)\)", (out / "assembly.md").read_text())
+    assert {"robot.png", "wiring.png", "assembly-1.png", "assembly-4.png"} <= set(pictures)
+    assert all(name in record["files"] for name in pictures)  # every picture the guide shows is written
     with (out / "bom.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert {"part", "quantity", "material", "size_mm", "mass_kg"} <= set(rows[0])
