@@ -71,7 +71,7 @@ def test_that_the_agent_forwards_no_trim_while_the_robot_moves(uno_and_agent: tu
     uno, address, key = uno_and_agent
     client = AgentClient(parse_address(address), load_host_key(key))
     try:
-        assert client.telemetry_until(10, lambda body: body.get("serial_connected")) is not None
+        assert client.telemetry_until(10, lambda body: bool(body.get("serial_connected"))) is not None
         deadline = time.monotonic() + 10
         body: dict[str, object] | None = None
         while time.monotonic() < deadline:
