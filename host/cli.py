@@ -166,11 +166,13 @@ def _twin_world(args: argparse.Namespace) -> int:
     from tumblebot.host.link import parse_address
     from tumblebot.host.twin import MOUNTING, ServoHardware, run_world
     from tumblebot.sim.design import Design
+    from tumblebot.sim.physics import PhysicsProfile
 
     right, left = (-MOUNTING[s] if s in args.reverse_servo else MOUNTING[s] for s in ("right", "left"))
     hardware = ServoHardware(neutral=args.servo_neutral, mounting=(right, left))
+    physics = PhysicsProfile.load(args.world_physics) if args.world_physics is not None else None
     return run_world(parse_address(args.pose_to), parse_address(args.control), args.serial_link,
-                     Design.parse(args.design), args.seed, servo=_servo_of(args), hardware=hardware)
+                     Design.parse(args.design), args.seed, servo=_servo_of(args), hardware=hardware, physics=physics)
 
 
 def _twin_run(args: argparse.Namespace) -> int:
@@ -185,8 +187,12 @@ def _twin_run(args: argparse.Namespace) -> int:
         from tumblebot.host.live import parse_listen
 
         parse_listen(args.foxglove)  # a bad address is refused before the twin starts
+    if args.world_physics is not None:
+        from tumblebot.sim.physics import PhysicsProfile
+
+        PhysicsProfile.load(str(args.world_physics))  # a bad profile is refused before the twin starts
     code = run_twin(args.out, args.points, args.per_point, args.radius, args.setpoint, args.heading,
-                    Design.parse(args.design), args.seed, args.policy, servo=servo,
+                    Design.parse(args.design), args.seed, args.policy, servo=servo, world_physics=args.world_physics,
                     extra=["--foxglove", args.foxglove] if args.foxglove is not None else None)
     if code != 0:
         return code
@@ -448,6 +454,9 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     t.add_argument("--foxglove", metavar="[HOST:]PORT",
                    help="stream the twin's trials live to Foxglove (as trial run --foxglove)")
     _add_servo(t)
+    t.add_argument("--world-physics", type=Path, metavar="PROFILE",
+                   help="run the twin's world under this physics profile (JSON file), which the host, the policy "
+                        "and a calibration are not told: the twin as a lab whose robot differs from the simulator")
     t.add_argument("--allow-servo-mismatch", action="store_true",
                    help="run a policy under a servo other than the one it was trained under")
     t.set_defaults(func=_twin_run)
@@ -464,6 +473,7 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     w.add_argument("--servo-neutral", type=_neutral_pair, default=(1500.0, 1500.0), metavar="RIGHT,LEFT",
                    help="the world's servos' own neutral pulses, µs (default 1500,1500): one the firmware's trim "
                         "does not match creeps")
+    w.add_argument("--world-physics", metavar="PROFILE", help="the world's physics profile (name or JSON file)")
     w.add_argument("--reverse-servo", action="append", choices=("right", "left"), default=[],
                    help="mount this servo the other way round (a reversed servo, for bring-up tests)")
     _add_servo(w)

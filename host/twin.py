@@ -38,6 +38,7 @@ from tumblebot.errors import TumblebotError
 from tumblebot.host.mocap import encode_pose_datagram
 from tumblebot.sim.design import Design
 from tumblebot.sim.evaluate import Servo, episode_seed
+from tumblebot.sim.physics import PhysicsProfile
 
 REPO = Path(__file__).resolve().parents[1]
 NEUTRAL_US = 1500.0
@@ -181,16 +182,13 @@ class _World:
 
 def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
               body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None,
-              hardware: ServoHardware | None = None) -> int:
+              hardware: ServoHardware | None = None, physics: PhysicsProfile | None = None) -> int:
     """The world process: real-time physics, mocap out, servo pulses in. Runs until
-    SIGTERM/SIGINT or a ``quit`` control datagram."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
-
+    SIGTERM/SIGINT or a ``quit`` control datagram. ``physics``: a world the rest of the
+    stack is not told about (its servo, floor, extra radio latency and motor noise),
+    instead of ``servo``."""
     uno = _start_emulator(serial_link)
-    # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
-    env = TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
-                     **(servo or Servo()).as_dict())
+    env = _world_env(design, servo, physics)
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
@@ -224,6 +222,18 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
         if serial_link.is_symlink():
             serial_link.unlink()
     return 0
+
+
+def _world_env(design: Design, servo: Servo | None, physics: PhysicsProfile | None) -> Any:
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.randomization import Randomization
+
+    if physics is not None:  # a hidden world: its latency comes on top of the chain's own
+        return TumblerEnv(task="nav-flat", design=design, randomization=physics.randomization(Randomization(
+            design=False)), **physics.env_kwargs())
+    # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
+    return TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
+                      **(servo or Servo()).as_dict())
 
 
 def _control(env: Any, data: bytes, seed: int, uno: Any, publish: dict[str, bool]) -> dict[str, Any]:
@@ -328,13 +338,16 @@ class TwinStack:
 
 def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tuple[float, float], heading: float,
              design: Design, seed: int, policy: str, extra: list[str] | None = None,
-             servo: Servo | None = None) -> int:
+             servo: Servo | None = None, world_physics: Path | None = None) -> int:
     """Run a trial set through the twin (the host as its own process). Returns its exit code.
-    The world's servo is recorded in ``OUT/twin.json``, so :func:`consistency` simulates
-    under the same one."""
+    The world's servo (or hidden physics profile, ``world_physics``) is recorded in
+    ``OUT/twin.json``, so :func:`consistency` simulates under the same world; nothing the
+    host runs reads that record."""
     servo = servo or Servo()
+    physics = PhysicsProfile.load(str(world_physics)) if world_physics is not None else None
+    world_args = ["--world-physics", str(world_physics)] if world_physics is not None else None
     with tempfile.TemporaryDirectory(prefix="tumblebot-twin-") as tmp, \
-            TwinStack(Path(tmp), design, seed, servo) as stack:
+            TwinStack(Path(tmp), design, seed, servo, world_args) as stack:
         cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--points", str(points),
                "--per-point", str(per_point), "--radius", str(radius), "--setpoint", f"{setpoint[0]},{setpoint[1]}",
                "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
@@ -344,7 +357,10 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
         logs = {name: (Path(tmp) / name).read_text() for name in ("world.log", "agent.log")
                 if (Path(tmp) / name).is_file()}
         if out.is_dir():
-            (out / "twin.json").write_text(json.dumps({"servo": servo.as_dict()}) + "\n")
+            record: dict[str, Any] = {"servo": servo.as_dict()}
+            if physics is not None:
+                record["world_physics"] = {**physics.to_json(), "digest": physics.digest()}
+            (out / "twin.json").write_text(json.dumps(record) + "\n")
             for name, text in logs.items():
                 (out / f"twin-{name}").write_text(text)
         timing = [line for line in logs.get("world.log", "").splitlines() if line.startswith("world:")]
@@ -362,6 +378,20 @@ def twin_servo(folder: Path) -> Servo:
         return Servo.from_card(json.loads(path.read_text()).get("servo") or {})
     except (ValueError, AttributeError) as exc:
         raise TwinError(f"{path} is not a twin record: {exc}") from None
+
+
+def twin_world_physics(folder: Path) -> PhysicsProfile | None:
+    """The hidden physics profile a twin trial set's world ran, if it had one."""
+    path = folder / "twin.json"
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text()).get("world_physics")
+    except (ValueError, AttributeError) as exc:
+        raise TwinError(f"{path} is not a twin record: {exc}") from None
+    if data is None:
+        return None
+    return PhysicsProfile.from_json({k: v for k, v in data.items() if k != "digest"}, str(path))
 
 
 # ----------------------------------------------------------------------------- consistency
@@ -384,8 +414,13 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
     index = load_index(folder)
     actor = make_actor("goto", "goto", plan.task) if plan.policy == "goto" else make_actor("onnx", plan.policy,
                                                                                            plan.task)
-    env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
-                     **twin_servo(folder).as_dict())
+    physics = twin_world_physics(folder)
+    if physics is not None:
+        env = TumblerEnv(task=plan.task, design=Design(*plan.design),
+                         randomization=physics.randomization(Randomization(design=False)), **physics.env_kwargs())
+    else:
+        env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
+                         **twin_servo(folder).as_dict())
     per_trial: list[list[float]] = []
     try:
         for entry in index["trials"]:

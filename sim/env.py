@@ -22,8 +22,10 @@ Motor models (``motor_model``):
   force cap, the common approximation (cheaper: set once per command).
 
 ``stall_torque`` (N·m, default the thesis constants' 0.582) scales both models: the DC
-line runs from it at standstill to zero at the free speed, and velocity control is capped
-at it. A predecessor-like strong servo is ``motor_model="velocity", stall_torque=10``.
+line runs from it at standstill to zero at the free speed (``free_speed``, rad/s, default
+the thesis's γ̇ = 3.67), and velocity control is capped at it. A physics profile
+(:mod:`tumblebot.sim.physics`) gives all of these at once. A predecessor-like strong
+servo is ``motor_model="velocity", stall_torque=10``.
 
 "Stop" holds the leg with a velocity-zero motor limited to the back-EMF braking torque
 plus ``hold_torque`` (gearbox friction and the servo's neutral-band braking).
@@ -116,6 +118,15 @@ class _WorldDraws:
         return xy, yaw
 
 
+def _check_servo(motor_model: str, stall_torque: float, free_speed: float) -> None:
+    if motor_model not in ("dc", "velocity"):
+        raise SimError(f"motor_model={motor_model!r} must be 'dc' or 'velocity'")
+    if not (math.isfinite(stall_torque) and 0.0 < stall_torque <= C.MAX_STALL_TORQUE):
+        raise SimError(f"stall_torque={stall_torque!r} N·m must be in (0, {C.MAX_STALL_TORQUE:g}]")
+    if not (math.isfinite(free_speed) and free_speed > 0.0):
+        raise SimError(f"free_speed={free_speed!r} rad/s must be positive")
+
+
 @dataclass(frozen=True)
 class EnvSnapshot:
     """What :meth:`TumblerEnv.snapshot` saves (the physics itself stays in the server)."""
@@ -155,6 +166,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: ``"rgb_array"`` (current frame) or ``"rgb_array_list"`` (frames at
             ``render_fps`` of simulated time since reset), both headless.
         render_size: frame ``(width, height)`` in pixels.
+        free_speed: the servo's free leg speed at full command, rad/s (see module docs).
     """
 
     metadata = {"render_modes": ["rgb_array", "rgb_array_list"], "render_fps": 10}  # noqa: RUF012 (gymnasium API)
@@ -177,13 +189,11 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         terrain: TerrainConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (320, 240),
+        free_speed: float = C.LEG_SPEED,
     ) -> None:
         super().__init__()
         self.task: TaskSpec = get_task(task)
-        if motor_model not in ("dc", "velocity"):
-            raise SimError(f"motor_model={motor_model!r} must be 'dc' or 'velocity'")
-        if not (math.isfinite(stall_torque) and 0.0 < stall_torque <= C.MAX_STALL_TORQUE):
-            raise SimError(f"stall_torque={stall_torque!r} N·m must be in (0, {C.MAX_STALL_TORQUE:g}]")
+        _check_servo(motor_model, stall_torque, free_speed)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise SimError(f"render_mode={render_mode!r} must be one of {self.metadata['render_modes']}")
         if episode_steps < 1 or step_seconds <= 0 or physics_hz < 60:
@@ -195,7 +205,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.randomization = randomization if randomization is not None else Randomization()
         self.motor_model: MotorModel = motor_model
         self.stall_torque = float(stall_torque)
-        self._damping = self.stall_torque / C.LEG_SPEED  # the DC line's slope, N·m·s/rad
+        self.free_speed = float(free_speed)
+        self._damping = self.stall_torque / self.free_speed  # the DC line's slope, N·m·s/rad
         self.episode_steps = episode_steps
         self.physics_hz = physics_hz
         self.substeps = round(step_seconds * physics_hz)
@@ -223,7 +234,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.design: Design = design if design is not None else DEFAULT_DESIGN
         self.model: RobotModel | None = None
         self._command = np.zeros(2)
-        self._speed = np.full(2, C.LEG_SPEED)
+        self._speed = np.full(2, self.free_speed)
         self._step = 0
         self._potential = 0.0
         self._motor_rng = np.random.default_rng(0)
@@ -265,7 +276,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self._robot = build_robot(c, self.model, (xy[0], xy[1], z), orientation, leg_angles, friction)
 
         self._command = np.zeros(2)
-        self._speed = np.full(2, C.LEG_SPEED)
+        self._speed = np.full(2, self.free_speed)
         self._frames = []
         self._substep_count = 0
         self._set_motors(self._command)
@@ -311,7 +322,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         rnd = self.randomization
         noise = self._motor_rng.standard_normal(2)
         latency = self._motor_rng.uniform(0.0, 1.0)
-        new_speed = np.maximum(C.LEG_SPEED + rnd.motor_speed_sigma * noise, 0.0)
+        new_speed = np.maximum(self.free_speed + rnd.motor_speed_sigma * noise, 0.0)
         lat_lo, lat_hi = rnd.latency
         delay = min(round((lat_lo + (lat_hi - lat_lo) * latency) * self.physics_hz), self.substeps)
 
@@ -392,7 +403,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         for _ in range(substeps):
             if self._substep_count % self.substeps == 0:
                 noise = self._motor_rng.standard_normal(2)
-                self._speed = np.maximum(C.LEG_SPEED + self.randomization.motor_speed_sigma * noise, 0.0)
+                self._speed = np.maximum(self.free_speed + self.randomization.motor_speed_sigma * noise, 0.0)
             self._set_motors(self._command)
             self._substep()
 

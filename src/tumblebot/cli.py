@@ -871,6 +871,7 @@ def build_parser() -> argparse.ArgumentParser:
     from tumblebot import __version__
     from tumblebot.host.cli import add_commands as add_host_commands
     from tumblebot.sim.hardware.commands import add_command as add_build_command
+    from tumblebot.sim.physics_command import add_command as add_physics_command
 
     parser = argparse.ArgumentParser(
         prog="tumblebot",
@@ -890,6 +891,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_command(sub)
     add_build_command(sub, _positive_float, _check_writable)
     add_host_commands(sub, _positive_int)
+    add_physics_command(sub)
     _add_demo_command(sub)
     return parser
 
