@@ -213,14 +213,18 @@ def _twin_check(args: argparse.Namespace) -> int:
 
 
 def _servo_of(args: argparse.Namespace) -> Any:
-    from tumblebot.sim.evaluate import Servo
+    from tumblebot.sim.physics import THESIS, PhysicsProfile
 
-    return Servo.of(args.motor_model, args.stall_torque)
+    base = PhysicsProfile.load(args.physics) if args.physics is not None else THESIS
+    return PhysicsProfile.of(args.motor_model, args.stall_torque, base)
 
 
 def _add_servo(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
-                   help="the simulated world's servo model (default dc)")
+    p.add_argument("--physics", default=None, metavar="NAME|FILE",
+                   help="the simulated world's physics profile, which the host's policy is checked against: the "
+                        "built-in thesis (default) or a JSON file")
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
+                   help="the simulated world's servo model (default the profile's, dc)")
     p.add_argument("--stall-torque", type=float, default=None, metavar="N·m",
                    help="the simulated servo's stall torque (default 0.582, the thesis's constants)")
 

@@ -28,7 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -232,8 +232,9 @@ def _world_env(design: Design, servo: Servo | None, physics: PhysicsProfile | No
         return TumblerEnv(task="nav-flat", design=design, randomization=physics.randomization(Randomization(
             design=False)), **physics.env_kwargs())
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
-    return TumblerEnv(task="nav-flat", design=design, randomization=Randomization(design=False, latency=(0.0, 0.0)),
-                      **(servo or Servo()).as_dict())
+    servo = servo or Servo()
+    return TumblerEnv(task="nav-flat", design=design, randomization=replace(
+        servo.randomization(Randomization(design=False)), latency=(0.0, 0.0)), **servo.env_kwargs())
 
 
 def _control(env: Any, data: bytes, seed: int, uno: Any, publish: dict[str, bool]) -> dict[str, Any]:
@@ -289,11 +290,12 @@ class TwinStack:
             f'allowed_host = "127.0.0.1"\nkey_file = "{self.key}"\n')
         self.agent: subprocess.Popen[bytes] | None = None
         self.world_log = (workdir / "world.log").open("w")
+        servo.write(workdir / "world-physics.json")
         self.world = subprocess.Popen(
             [sys.executable, "-m", "tumblebot.cli", "twin", "world", "--pose-to", f"127.0.0.1:{self.pose_port}",
              "--control", f"127.0.0.1:{self.control_port}", "--serial-link", str(self.serial_link),
              "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
-             "--motor-model", servo.model, "--stall-torque", repr(servo.stall_torque), *(world_args or [])],
+             "--physics", str(workdir / "world-physics.json"), *(world_args or [])],
             stdout=subprocess.PIPE, stderr=self.world_log, text=True)
         assert self.world.stdout is not None
         line = self.world.stdout.readline()
@@ -357,7 +359,7 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
         logs = {name: (Path(tmp) / name).read_text() for name in ("world.log", "agent.log")
                 if (Path(tmp) / name).is_file()}
         if out.is_dir():
-            record: dict[str, Any] = {"servo": servo.as_dict()}
+            record: dict[str, Any] = {"servo": servo.record()}
             if physics is not None:
                 record["world_physics"] = {**physics.to_json(), "digest": physics.digest()}
             (out / "twin.json").write_text(json.dumps(record) + "\n")
@@ -419,8 +421,9 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
         env = TumblerEnv(task=plan.task, design=Design(*plan.design),
                          randomization=physics.randomization(Randomization(design=False)), **physics.env_kwargs())
     else:
-        env = TumblerEnv(task=plan.task, design=Design(*plan.design), randomization=Randomization(design=False),
-                         **twin_servo(folder).as_dict())
+        servo = twin_servo(folder)
+        env = TumblerEnv(task=plan.task, design=Design(*plan.design),
+                         randomization=servo.randomization(Randomization(design=False)), **servo.env_kwargs())
     per_trial: list[list[float]] = []
     try:
         for entry in index["trials"]:

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.physics import THESIS, PhysicsProfile
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.rollout import make_actor, run_episode
 
@@ -42,12 +42,12 @@ def run_gait_episode(
     gait: str = "forward",
     seed: int = 0,
     randomization: Randomization | None = None,
-    motor_model: str = "dc",
     record: bool = False,
-    stall_torque: float = STALL_TORQUE,
+    physics: PhysicsProfile = THESIS,
 ) -> EpisodeResult:
     """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
-    the closed-loop navigation controller)."""
+    the closed-loop navigation controller), with ``physics``'s servo (the floor, latency
+    and noise are ``randomization``'s: see :meth:`PhysicsProfile.randomization`)."""
     from tumblebot.sim.env import TumblerEnv
     from tumblebot.sim.evaluate import Controller
 
@@ -55,9 +55,7 @@ def run_gait_episode(
     controller.check(task)
     actor = make_actor(controller.kind, controller.name, task)
     env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),
-                     motor_model=motor_model,  # type: ignore[arg-type]
-                     stall_torque=stall_torque,
-                     render_mode="rgb_array_list" if record else None)
+                     render_mode="rgb_array_list" if record else None, **physics.env_kwargs())
     try:
         steps: list[StepRecord] = []
 

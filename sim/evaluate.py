@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.constants import MAX_STALL_TORQUE, STALL_TORQUE
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.gaits import get_gait
 from tumblebot.sim.goto import check_navigation_task
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.stats import mean_ci95
 from tumblebot.sim.tasks import get_task
@@ -59,8 +59,9 @@ class Controller:
             trained = Servo.from_card(policy.card.get("servo") or {})
             if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
                 raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
-                                  f"not the {servo.describe()}: train one under that servo (tumblebot train "
-                                  "--motor-model/--stall-torque), or pass --allow-servo-mismatch to use it anyway")
+                                  f"not the {servo.describe()}: train one under that world (tumblebot train "
+                                  "--physics, --motor-model/--stall-torque), or pass --allow-servo-mismatch to use "
+                                  "it anyway")
         elif self.kind == "goto":
             check_navigation_task(task)
         elif self.kind == "gait":
@@ -69,40 +70,8 @@ class Controller:
             raise SimError(f"unknown controller kind {self.kind!r}")
 
 
-@dataclass(frozen=True)
-class Servo:
-    """The servo model of an evaluation: ``model`` ``"dc"`` or ``"velocity"`` and the stall
-    torque in N·m (see :mod:`tumblebot.sim.env`). Part of what a result means."""
-
-    model: str = "dc"
-    stall_torque: float = STALL_TORQUE
-
-    def __post_init__(self) -> None:
-        if self.model not in ("dc", "velocity"):
-            raise SimError(f"motor model {self.model!r} must be 'dc' or 'velocity'")
-        if not (math.isfinite(self.stall_torque) and 0.0 < self.stall_torque <= MAX_STALL_TORQUE):
-            raise SimError(f"stall torque {self.stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
-
-    @classmethod
-    def of(cls, model: str | None, stall_torque: float | None) -> Servo:
-        """From a command line or a record, where either may be missing (the default)."""
-        return cls(model or "dc", STALL_TORQUE if stall_torque is None else float(stall_torque))
-
-    @classmethod
-    def from_card(cls, data: dict[str, Any]) -> Servo:
-        """A model card's, study's or twin record's ``{"motor_model", "stall_torque"}``."""
-        return cls.of(data.get("motor_model"), data.get("stall_torque"))
-
-    def same_as(self, other: Servo) -> bool:
-        return self.model == other.model and math.isclose(self.stall_torque, other.stall_torque, rel_tol=1e-6)
-
-    def describe(self) -> str:
-        return f"{self.model} servo, stall torque {self.stall_torque:.3g} N·m"
-
-    def as_dict(self) -> dict[str, Any]:
-        """``{"motor_model", "stall_torque"}``: the environment's keyword arguments, and
-        what records store."""
-        return {"motor_model": self.model, "stall_torque": self.stall_torque}
+#: The world an evaluation runs in: a physics profile (the name says what results depend on).
+Servo = PhysicsProfile
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -146,7 +115,9 @@ class EvalResult:
             "task": self.task,
             "design": self.design.as_dict(),
             "controller": self.controller,
-            **self.servo.as_dict(),
+            "motor_model": self.servo.motor_model,
+            "stall_torque": self.servo.stall_torque,
+            "physics": self.servo.record(),
             "seed": self.seed,
             "episodes": self.episodes,
             "mean_R": self.mean_R,

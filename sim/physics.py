@@ -124,6 +124,51 @@ class PhysicsProfile:
             raise PhysicsError(f"physics profile {spec}: not readable JSON ({exc})") from None
         return cls.from_json(data, str(path))
 
+    # ------------------------------------------------------------------ records
+    @classmethod
+    def of(cls, model: str | None, stall_torque: float | None, base: PhysicsProfile | None = None) -> PhysicsProfile:
+        """``base`` (default ``thesis``) with the ``--motor-model``/``--stall-torque``
+        shorthands applied, where given."""
+        base = base or THESIS
+        changed = replace(base, motor_model=model or base.motor_model,
+                          stall_torque=base.stall_torque if stall_torque is None else stall_torque)
+        if changed.digest() == base.digest():
+            return base
+        return replace(changed, name=f"{base.name}, {changed.motor_model} {changed.stall_torque:.3g} N·m")
+
+    @classmethod
+    def from_card(cls, data: dict[str, Any]) -> PhysicsProfile:
+        """What a model card, study, twin record or report stored: a whole profile (with
+        its digest), or, from before profiles, only ``{"motor_model", "stall_torque"}``."""
+        if not set(data) - {"motor_model", "stall_torque"}:
+            return cls.of(data.get("motor_model"), data.get("stall_torque"))
+        return cls.from_json({k: v for k, v in data.items() if k != "digest"}, "stored physics profile")
+
+    def as_fields(self) -> dict[str, Any]:
+        """What a study or training config stores of it: the servo shorthands, and the whole
+        profile only when it differs from ``thesis`` in more than those (so records of the
+        thesis's world read as they did before profiles existed)."""
+        beyond_servo = not PhysicsProfile.of(self.motor_model, self.stall_torque).same_as(self)
+        return {"motor_model": self.motor_model, "stall_torque": self.stall_torque,
+                "physics": self.record() if beyond_servo else None}
+
+    @classmethod
+    def of_fields(cls, motor_model: str, stall_torque: float, physics: dict[str, Any] | None) -> PhysicsProfile:
+        """The inverse of :meth:`as_fields`."""
+        return cls.from_card(physics) if physics is not None else cls.of(motor_model, stall_torque)
+
+    def record(self) -> dict[str, Any]:
+        """What records store: every value, and the digest."""
+        return {**self.to_json(), "digest": self.digest()}
+
+    @property
+    def model(self) -> str:
+        """The servo model (``motor_model``)."""
+        return self.motor_model
+
+    def same_as(self, other: PhysicsProfile) -> bool:
+        return self.digest() == other.digest()
+
     # ------------------------------------------------------------------ use
     def with_servo(self, name: str) -> PhysicsProfile:
         """This profile with a catalogue servo's free speed and stall torque."""
@@ -141,6 +186,9 @@ class PhysicsProfile:
                        latency=self.latency, motor_speed_sigma=self.motor_speed_sigma)
 
     def describe(self) -> str:
+        if replace(self, name=THESIS.name, motor_model=THESIS.motor_model,
+                   stall_torque=THESIS.stall_torque).digest() == THESIS.digest():
+            return f"{self.motor_model} servo, stall torque {self.stall_torque:.3g} N·m"  # the thesis's world otherwise
         return (f"{self.name}: {self.motor_model} servo, free speed {self.free_speed:.3g} rad/s, stall torque "
                 f"{self.stall_torque:.3g} N·m, hold {self.hold_torque:.3g} N·m; friction {self.friction:.3g} "
                 f"(±{self.friction_rel_sigma:.0%}); latency {1e3 * self.latency[0]:.0f}–{1e3 * self.latency[1]:.0f} "

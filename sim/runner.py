@@ -45,8 +45,8 @@ class _Worker:
             from tumblebot.sim.env import TumblerEnv
             from tumblebot.sim.randomization import Randomization
 
-            self.envs[task] = TumblerEnv(task=task, randomization=Randomization(design=False),
-                                         **self.servo.as_dict())
+            self.envs[task] = TumblerEnv(task=task, randomization=self.servo.randomization(Randomization(design=False)),
+                                         **self.servo.env_kwargs())
             controller = self.controllers[task]
             self.actors[task] = make_actor(controller.kind, controller.name, task)
         out = run_episode(self.envs[task], self.actors[task], seed,

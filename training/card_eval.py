@@ -5,6 +5,7 @@ navigation tasks also against the ``goto`` controller, paired on the same episod
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,8 @@ from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
 from tumblebot.sim.gaits import GAITS
 from tumblebot.sim.goto import NAVIGATION_TASKS
+from tumblebot.sim.physics import THESIS, PhysicsProfile
+from tumblebot.sim.policy import card_path
 
 XI3_ROBOT = THESIS_ROBOTS["3"]
 
@@ -114,7 +117,7 @@ def _welch_from_summary(a: EvalResult, b: dict[str, Any], n: int) -> float:
 
 
 def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Design, task: str, episodes: int,
-                        seed: int, workers: int) -> dict[str, Any] | None:
+                        seed: int, workers: int, servo: PhysicsProfile = THESIS) -> dict[str, Any] | None:
     """A previous card's gait baselines for ``label``, if they are for the same design,
     episodes and seed and still reproduce: the gaits do not depend on the policy, so the
     same episodes give the same numbers. Checked by re-running its best fixed gait, which
@@ -125,7 +128,7 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
     if not entry or entry.get("design") != design.as_dict() or "baselines" not in entry:
         return None
     best = entry["best_fixed_gait"]
-    check = evaluate(task, design, Controller("gait", best), episodes, seed, workers, progress=True)
+    check = evaluate(task, design, Controller("gait", best), episodes, seed, workers, progress=True, servo=servo)
     if check.mean_R != entry["baselines"][best]["mean_R"]:
         return None
     return {"baselines": entry["baselines"], "best_fixed_gait": best}
@@ -134,22 +137,25 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
 def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: int,
                     previous: dict[str, Any] | None = None) -> dict[str, Any]:
     """The card's evaluation. ``previous``, an earlier card's ``evaluation`` for the same
-    task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`)."""
+    task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`).
+    Every episode runs under the physics profile the policy was trained under (its card's)."""
+    servo = PhysicsProfile.from_card(json.loads(card_path(policy).read_text()).get("servo") or {})
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     measured: dict[Design, EvalResult] = {}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
-        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True)
+        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True,
+                       servo=servo)
         measured[design] = pol
         entry = pol.summary()
-        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers)
+        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers, servo)
         if recorded is not None:
             entry.update(recorded, baselines_reused_from_previous_card=True)
             base = recorded["baselines"]
             entry["p_vs_best_fixed_gait"] = _welch_from_summary(pol, base[recorded["best_fixed_gait"]], episodes)
             entry["p_vs_random_policy"] = _welch_from_summary(pol, base["random"], episodes)
         else:
-            gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True)
-                     for g in [*FIXED_GAITS, "random"]}
+            gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True,
+                                 servo=servo) for g in [*FIXED_GAITS, "random"]}
             best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
             entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
             entry["best_fixed_gait"] = best_fixed

@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.constants import MAX_STALL_TORQUE, STALL_TORQUE
+from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.policy import LAYOUTS
 from tumblebot.sim.randomization import Randomization
 
@@ -79,6 +81,9 @@ class TrainConfig:
     init_from: str | None = None
     init_from_steps: int = 0
     design: list[float] | None = None
+    #: the whole physics profile when it differs from ``thesis`` in more than the servo
+    #: above (:meth:`tumblebot.sim.physics.PhysicsProfile.as_fields`); None for runs before profiles
+    physics: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         from tumblebot.sim.tasks import get_task
@@ -98,10 +103,10 @@ class TrainConfig:
             raise TrainingError(f"training config init_from={self.init_from!r} must be a checkpoint path or null")
         if not isinstance(self.init_from_steps, int) or self.init_from_steps < 0:
             raise TrainingError(f"training config init_from_steps={self.init_from_steps!r} must be >= 0")
-        if self.motor_model not in ("dc", "velocity"):
-            raise TrainingError(f"motor_model {self.motor_model!r} must be 'dc' or 'velocity'")
-        if not isinstance(self.stall_torque, (int, float)) or not 0 < self.stall_torque <= MAX_STALL_TORQUE:
-            raise TrainingError(f"stall_torque {self.stall_torque!r} N·m must be in (0, {MAX_STALL_TORQUE:g}]")
+        try:
+            self.profile()  # checks motor_model and stall_torque too
+        except SimError as exc:
+            raise TrainingError(f"training config: {exc}") from None
         if self.observation not in LAYOUTS:
             raise TrainingError(f"observation {self.observation!r} must be one of: {', '.join(LAYOUTS)}")
         if not isinstance(self.tumbling_designs_only, bool):
@@ -110,9 +115,15 @@ class TrainConfig:
         if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
             raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
 
+    def profile(self) -> PhysicsProfile:
+        """The physics profile the policy is trained under."""
+        if self.physics is not None and not isinstance(self.physics, dict):
+            raise TrainingError(f"training config physics={self.physics!r} must be a profile object or null")
+        return PhysicsProfile.of_fields(self.motor_model, self.stall_torque, self.physics)
+
     def randomization(self) -> Randomization:
         """What the training environments randomise (the model card records the same)."""
-        return Randomization(tumbling_designs_only=self.tumbling_designs_only)
+        return self.profile().randomization(Randomization(tumbling_designs_only=self.tumbling_designs_only))
 
     @property
     def envs(self) -> int:

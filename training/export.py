@@ -22,7 +22,7 @@ import torch
 from stable_baselines3 import PPO
 from torch import nn
 
-from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.physics import THESIS
 from tumblebot.sim.policy import ACTION_LAYOUT, LAYOUTS, card_path, sha256_of
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
@@ -136,8 +136,7 @@ def write_card(onnx_path: Path, task: str, steps: int, config: TrainConfig | Non
         "seed": config.seed if config else None,
         "training_config": asdict(config) if config else None,
         "randomization": asdict(config.randomization() if config else Randomization()),
-        "servo": ({"motor_model": config.motor_model, "stall_torque": config.stall_torque} if config
-                  else {"motor_model": "dc", "stall_torque": STALL_TORQUE}),
+        "servo": (config.profile() if config else THESIS).record(),
         "onnx_sha256": sha256_of(onnx_path),
     }
     if extra:

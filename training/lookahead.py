@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.goto import GotoController
+from tumblebot.sim.physics import PhysicsProfile
 
 ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
 
@@ -62,8 +63,7 @@ class WorkerSpec:
 
     task: str
     tumbling_designs_only: bool
-    motor_model: str
-    stall_torque: float
+    physics: PhysicsProfile
     state_weight: float
     progress_weight: float
     horizon: int  #: the last steps labelled by the search
@@ -79,9 +79,9 @@ def _init_worker(spec: WorkerSpec, student: str | None) -> None:
     from tumblebot.sim.policy import OnnxPolicy
     from tumblebot.sim.randomization import Randomization
 
-    _WORKER["env"] = TumblerEnv(task=spec.task, randomization=Randomization(
-        tumbling_designs_only=spec.tumbling_designs_only), motor_model=spec.motor_model,  # type: ignore[arg-type]
-        stall_torque=spec.stall_torque, state_weight=spec.state_weight, progress_weight=spec.progress_weight)
+    _WORKER["env"] = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
+        tumbling_designs_only=spec.tumbling_designs_only)), state_weight=spec.state_weight,
+        progress_weight=spec.progress_weight, **spec.physics.env_kwargs())
     _WORKER["student"] = OnnxPolicy(Path(student)) if student else None
     _WORKER["spec"] = spec
 

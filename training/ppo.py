@@ -38,8 +38,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 from tqdm import tqdm
 
-from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.physics import THESIS, PhysicsProfile
 from tumblebot.sim.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import ContextObservation, TumblerFeaturesExtractor
@@ -57,9 +57,8 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 def make_env(task: str, state_weight: float, progress_weight: float,
-             randomization: Randomization | None = None, motor_model: str = "dc",
-             stall_torque: float = STALL_TORQUE, observation: str = "thesis",
-             design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
+             randomization: Randomization | None = None, physics: PhysicsProfile = THESIS,
+             observation: str = "thesis", design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
     ``"memory"`` or ``"residual"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
     from tumblebot.sim.design import Design
@@ -70,15 +69,15 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                     randomization=randomization, motor_model=motor_model,  # type: ignore[arg-type]
-                     stall_torque=stall_torque, design=None if design is None else Design.from_sequence(design))
+                     randomization=randomization, design=None if design is None else Design.from_sequence(design),
+                     **physics.env_kwargs())
     return env if observation == "thesis" else ContextObservation(env, observation)
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], gym.Env[np.ndarray, np.ndarray]] = partial(
         make_env, config.task, config.state_weight, config.progress_weight, config.randomization(),
-        config.motor_model, config.stall_torque, config.observation, config.design)
+        config.profile(), config.observation, config.design)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

@@ -27,10 +27,10 @@ from tumblebot.sim.policy import bundled_policy, sha256_of
 
 HERE = Path(__file__).resolve().parent
 SERVOS = {
-    "dc 0.58 N·m (default)": Servo("dc", STALL_TORQUE),
-    "velocity 0.58 N·m": Servo("velocity", STALL_TORQUE),
-    "velocity 2 N·m": Servo("velocity", 2.0),
-    "velocity 10 N·m (predecessor-like)": Servo("velocity", 10.0),
+    "dc 0.58 N·m (default)": Servo.of("dc", STALL_TORQUE),
+    "velocity 0.58 N·m": Servo.of("velocity", STALL_TORQUE),
+    "velocity 2 N·m": Servo.of("velocity", 2.0),
+    "velocity 10 N·m (predecessor-like)": Servo.of("velocity", 10.0),
 }
 
 

@@ -45,7 +45,7 @@ HERE = Path(__file__).resolve().parent
 TASKS = ("nav-flat", "distance-flat", "incline")
 STUDIES = {"nav-flat": "nav-flat-front", "nav-terrain": "nav-terrain-xi0", "distance-flat": "distance-flat-xi0",
            "incline": "incline-xi0"}
-SERVOS = {"realistic (dc, 0.58 N·m)": Servo(), "strong (velocity, 10 N·m)": Servo("velocity", 10.0)}
+SERVOS = {"realistic (dc, 0.58 N·m)": Servo(), "strong (velocity, 10 N·m)": Servo.of("velocity", 10.0)}
 #: the controller of each task (no training needed, so any servo)
 CONTROLLERS = {"nav-flat": Controller.of_gait("goto"), "distance-flat": Controller.of_gait("forward"),
                "incline": Controller.of_gait("forward")}

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -76,9 +77,10 @@ def main() -> None:
     args = parser.parse_args()
     plan = TrialPlan.from_json(json.loads((args.folder / "plan.json").read_text()))
     index = {int(e["trial"]): e for e in load_index(args.folder)["trials"]}
+    servo = twin_servo(args.folder)
     world = TumblerEnv(task="nav-flat", design=Design(*plan.design),
-                       randomization=Randomization(design=False, latency=(0.0, 0.0)),
-                       **twin_servo(args.folder).as_dict())
+                       randomization=replace(servo.randomization(Randomization(design=False)), latency=(0.0, 0.0)),
+                       **servo.env_kwargs())
     try:
         for trial, (placed, changes) in sorted(world_log(args.folder).items()):
             if trial not in index:

@@ -60,18 +60,24 @@ class StudyConfig:
     #: a front study's ξ values ("0", "1", "3", "inf"); empty for a single-ξ study (and for
     #: every study made before front studies existed).
     front: list[str] = field(default_factory=list)
+    #: the whole physics profile (its values and digest) when it differs from ``thesis`` in
+    #: more than the servo model and stall torque above; None otherwise (and for every study
+    #: made before profiles existed), so those studies resume unchanged.
+    physics: dict[str, Any] | None = None
 
     @classmethod
     def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
            controller: str = "policy", servo: Servo | None = None) -> StudyConfig:
         xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
         servo = servo or Servo()
+        kept = servo.as_fields()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
-                   recipe.startup, seed, policies, controller, servo.model, servo.stall_torque,
-                   [format_xi(x) for x in objective.front])
+                   recipe.startup, seed, policies, controller, kept["motor_model"], kept["stall_torque"],
+                   [format_xi(x) for x in objective.front], kept["physics"])
 
     def servo(self) -> Servo:
-        return Servo.of(self.motor_model, self.stall_torque)
+        """The study's physics profile (the world of every episode)."""
+        return Servo.of_fields(self.motor_model, self.stall_torque, self.physics)
 
     def objective(self) -> Objective:
         xi = math.inf if self.xi == "inf" else float(self.xi)
@@ -81,8 +87,12 @@ class StudyConfig:
     def differences(self, other: StudyConfig) -> list[str]:
         """What differs in the objective or its noise (``startup`` may change between runs)."""
         mine, theirs = asdict(self), asdict(other)
-        return [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
-                for k in mine if k != "startup" and mine[k] != theirs[k]]
+        out = [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
+               for k in mine if k not in ("startup", "physics") and mine[k] != theirs[k]]
+        said = any(line.startswith(("motor_model", "stall_torque")) for line in out)
+        if not said and not self.servo().same_as(other.servo()):  # the values matter, not the profile's name
+            out.append(f"physics: study has {self.servo().describe()}, command asks for {other.servo().describe()}")
+        return out
 
 
 # --------------------------------------------------------------------------- trial records

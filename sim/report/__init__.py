@@ -93,7 +93,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     data = {"storage": storage_url, "studies": [r.name for r in results], "episodes": episodes, "seed": seed,
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
-            "controller": controller, "servo": servo.as_dict(),
+            "controller": controller, "servo": servo.record(),
             "table31": table31, "table32": table32, "universal": universal, "slices": slices}
     plots = draw_plots(results, reference, slices, out_dir)
     text = render_markdown(results, reference, ref_task, data, plots)

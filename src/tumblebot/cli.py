@@ -75,6 +75,8 @@ def _urdf(args: argparse.Namespace) -> int:
 
 
 def _sim(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from tumblebot.sim.design import Design
     from tumblebot.sim.episode import run_gait_episode, write_animation
     from tumblebot.sim.randomization import Randomization
@@ -87,9 +89,10 @@ def _sim(args: argparse.Namespace) -> int:
         if args.video.suffix.lower() not in (".gif", ".png"):
             raise TumblebotError(f"--video {args.video}: the file must end in .gif (or .png)")
         _check_writable(args.video, "--video")
-    rnd = Randomization(design=False) if args.randomize else Randomization.off()
-    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, servo.model,
-                              record=args.video is not None, stall_torque=servo.stall_torque)
+    # randomised: the profile's spreads; else nominal everything, on the profile's floor
+    rnd = (servo.randomization(Randomization(design=False)) if args.randomize
+           else replace(Randomization.off(), friction=servo.friction))
+    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, record=args.video is not None, physics=servo)
     print(f"{task.name}: {task.description}")
     print(f"{w}, gait {args.gait!r}, {servo.describe()}, seed {args.seed}")
     print(f"{'step':>4}  {'action (R, L)':<18} {'x':>7} {'y':>7} {'z':>6}  {'R':>7}")
@@ -145,10 +148,11 @@ def _train_run(args: argparse.Namespace) -> int:
     from tumblebot.training.ppo import train
 
     overrides = {k: v for k, v in (("total_steps", args.steps), ("n_envs", args.envs), ("seed", args.seed),
-                                   ("motor_model", args.motor_model), ("stall_torque", args.stall_torque),
                                    ("checkpoint_every", args.checkpoint_every), ("observation", args.observation),
                                    ("init_from", None if args.init_from is None else str(args.init_from)))
                  if v is not None}
+    if any(v is not None for v in (args.physics, args.motor_model, args.stall_torque)):
+        overrides.update(_servo(args).as_fields())
     base: dict[str, Any] = {}
     if args.config is not None:  # only the keys the file sets, so a warm start's inherited ones stay
         loaded = TrainConfig.load(args.config).__dict__
@@ -177,7 +181,8 @@ def _inherited(init_from: Path | None) -> dict[str, Any]:
         return {}
     source = TrainConfig.load(folder / "config.json")
     return {"observation": source.observation, "net_arch": source.net_arch, "motor_model": source.motor_model,
-            "stall_torque": source.stall_torque, "tumbling_designs_only": source.tumbling_designs_only}
+            "stall_torque": source.stall_torque, "physics": source.physics,
+            "tumbling_designs_only": source.tumbling_designs_only}
 
 
 def _imitate(args: argparse.Namespace) -> int:
@@ -194,8 +199,7 @@ def _imitate(args: argparse.Namespace) -> int:
     settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
     config = TrainConfig(task=task, observation=args.observation, tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
-                         motor_model=args.motor_model,
-                         **({} if args.stall_torque is None else {"stall_torque": args.stall_torque}))
+                         **_servo(args).as_fields())
     print(f"imitating goto on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
           f"{config.envs} environments, in {args.run_dir}")
     try:
@@ -506,7 +510,7 @@ def _report(args: argparse.Namespace) -> int:
         raise TumblebotError(f"-o {args.output} exists and is not a folder")
     _check_writable(args.output / "report.md", "-o")
 
-    given = args.motor_model is not None or args.stall_torque is not None
+    given = any(v is not None for v in (args.physics, args.motor_model, args.stall_torque))
     servo = _servo(args) if given else None  # else the studies' own
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
@@ -522,10 +526,12 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _servo(args: argparse.Namespace) -> Any:
-    """The ``--motor-model`` / ``--stall-torque`` pair as an evaluation :class:`Servo`."""
-    from tumblebot.sim.evaluate import Servo
+    """The physics profile of ``--physics`` (default ``thesis``) with the ``--motor-model``
+    and ``--stall-torque`` shorthands applied."""
+    from tumblebot.sim.physics import THESIS, PhysicsProfile
 
-    return Servo.of(args.motor_model, args.stall_torque)
+    base = PhysicsProfile.load(args.physics) if args.physics is not None else THESIS
+    return PhysicsProfile.of(args.motor_model, args.stall_torque, base)
 
 
 def _check_writable(path: Path, flag: str) -> None:
@@ -547,11 +553,19 @@ def _add_mismatch_argument(p: argparse.ArgumentParser) -> None:
                    help="use a policy under a servo other than the one its model card says it was trained under")
 
 
+def _add_physics_argument(p: argparse.ArgumentParser, what: str = "the world of every episode") -> None:
+    p.add_argument("--physics", default=None, metavar="NAME|FILE",
+                   help=f"physics profile: {what} (servo, floor friction, latency, motor noise): the built-in "
+                        "thesis (default) or a JSON file (tumblebot physics show; docs/physics.md)")
+
+
 def _add_servo_arguments(p: argparse.ArgumentParser) -> None:
     # No simulator import here: building the parser stays fast (--help, bad arguments).
-    p.add_argument("--motor-model", choices=("dc", "velocity"), default="dc",
+    _add_physics_argument(p)
+    p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
                    help="servo model: dc (torque falls linearly from the stall torque to zero at the free "
-                        "speed) or velocity (velocity control capped at the stall torque); default dc")
+                        "speed) or velocity (velocity control capped at the stall torque); default the "
+                        "profile's (dc)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
                    help="servo stall torque in N·m (default 0.582, the thesis's motor constants; "
                         "a predecessor-like strong servo is --motor-model velocity --stall-torque 10)")
@@ -662,8 +676,9 @@ def _add_train_command(sub: Subcommands) -> None:
     p.add_argument("--config", type=Path, default=None, help="JSON file of TrainConfig fields")
     p.add_argument("--run-dir", type=Path, default=None, help="run folder (default runs/TASK-TIMESTAMP)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last checkpoint")
+    _add_physics_argument(p, "the world to train under (recorded in the model card)")
     p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
-                   help="servo model to train under (default dc; recorded in the model card)")
+                   help="servo model to train under (default the profile's, dc; recorded in the model card)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",
                    help="servo stall torque to train under (default 0.582, the thesis's motor constants)")
     p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
@@ -848,6 +863,7 @@ def _add_report_command(sub: Subcommands) -> None:
                         "(default: theirs, which must then agree)")
     p.add_argument("--thesis-policies", action="store_true",
                    help="re-evaluate with the bundled thesis-observation policies (see optimize --thesis-policies)")
+    _add_physics_argument(p, "re-evaluate under this world (default: the studies', which must agree)")
     p.add_argument("--motor-model", choices=("dc", "velocity"), default=None,
                    help="re-evaluate under this servo model (default: the studies', which must agree)")
     p.add_argument("--stall-torque", type=_stall_torque, default=None, metavar="N·m",

@@ -456,7 +456,9 @@ def test_that_a_study_records_its_controller_and_servo_and_refuses_another(tmp_p
              "--slice-points", "2", "--quiet")
     assert rep.returncode == 0, rep.stderr
     data = json.loads((tmp_path / "r" / "report.json").read_text())
-    assert data["controller"] == "goto" and data["servo"] == {"motor_model": "velocity", "stall_torque": 10.0}
+    assert data["controller"] == "goto" and data["servo"]["motor_model"] == "velocity"
+    assert data["servo"]["stall_torque"] == 10.0 and data["servo"]["free_speed"] == 3.67  # the whole profile
+    assert len(data["servo"]["digest"]) == 16
 
 
 def test_that_goto_is_refused_for_a_study_of_a_task_that_is_not_navigation(tmp_path: Path) -> None:

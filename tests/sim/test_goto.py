@@ -75,7 +75,7 @@ def test_that_goto_reaches_the_goal_with_the_thesis_xi3_robot() -> None:
 
 def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_one_does_not() -> None:
     strong = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0,
-                      servo=Servo("velocity", 10.0))
+                      servo=Servo.of("velocity", 10.0))
     realistic = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0)
     assert strong.mean_R > 0.7 and realistic.mean_R < 0.5, (strong.R, realistic.R)
 
@@ -83,10 +83,10 @@ def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_on
 def test_that_the_stall_torque_scales_the_servo() -> None:
     with pytest.raises(SimError, match="stall_torque"):
         TumblerEnv(stall_torque=0.0)
-    with pytest.raises(SimError, match="stall torque"):
-        Servo("dc", float("nan"))
-    with pytest.raises(SimError, match="motor model"):
-        Servo("stepper", 1.0)
+    with pytest.raises(SimError, match="stall_torque"):
+        Servo.of("dc", float("nan"))
+    with pytest.raises(SimError, match="motor_model"):
+        Servo.of("stepper", 1.0)
 
 
 def test_that_evaluate_json_records_the_servo_and_the_controller(capsys: pytest.CaptureFixture[str]) -> None:
