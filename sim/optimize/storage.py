@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import time
 import warnings
 import weakref
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import unquote, urlsplit, urlunsplit
 
 from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.evaluate import Servo
@@ -140,6 +142,38 @@ class TrialRecord:
 
 
 # --------------------------------------------------------------------------- storage
+_SECRET_QUERY = re.compile(r"(?i)([?&](?:password|passwd|pwd)=)[^&]*")
+
+
+def _password(url: str) -> str | None:
+    try:
+        return urlsplit(url).password
+    except ValueError:
+        return None
+
+
+def redact_url(url: str) -> str:
+    """``url`` as it may be shown or stored: a password in it (``user:secret@host``, or a
+    ``password=`` query parameter) becomes ``***``. Keep the password out of the URL
+    altogether with ``PGPASSWORD`` or a ``~/.pgpass`` file (PostgreSQL reads both)."""
+    password = _password(url)
+    if password:
+        parts = urlsplit(url)
+        user = parts.username or ""
+        host = parts.netloc.rpartition("@")[2]
+        url = urlunsplit(parts._replace(netloc=f"{user}:***@{host}"))
+    return _SECRET_QUERY.sub(r"\1***", url)
+
+
+def scrub_password(text: str, url: str) -> str:
+    """``text`` (e.g. a driver's error message) with ``url``'s password replaced by ``***``."""
+    secrets = [_password(url), *(m.group(0).split("=", 1)[1] for m in _SECRET_QUERY.finditer(url))]
+    for secret in filter(None, secrets):
+        for form in {secret, unquote(secret)}:  # as written, and as a driver decodes it
+            text = text.replace(form, "***")
+    return text
+
+
 def open_storage(url: str, writable: bool = False, must_exist: bool = False) -> Any:
     """An Optuna RDB storage for ``url`` (``sqlite:///file.db``, ``postgresql://…``), with
     heartbeats so a trial whose process was killed is failed and not counted forever.
@@ -151,20 +185,21 @@ def open_storage(url: str, writable: bool = False, must_exist: bool = False) -> 
     from optuna.storages import RDBStorage
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    shown = redact_url(url)  # error messages never carry the password
     if "://" not in url:
-        raise OptimizeError(f"--storage {url!r} is not a database URL (e.g. sqlite:///study.db, "
+        raise OptimizeError(f"--storage {shown!r} is not a database URL (e.g. sqlite:///study.db, "
                             "postgresql://user@host/db)")
     if url.startswith("sqlite:///"):
         path = Path(url[len("sqlite:///"):])
         if str(path) and str(path) != ":memory:":
             if not path.parent.exists():
-                raise OptimizeError(f"--storage {url!r}: folder {path.parent} does not exist")
+                raise OptimizeError(f"--storage {shown!r}: folder {path.parent} does not exist")
             if must_exist and not path.is_file():
-                raise OptimizeError(f"--storage {url!r}: there is no database file {path}")
+                raise OptimizeError(f"--storage {shown!r}: there is no database file {path}")
             if writable and path.exists() and not os.access(path, os.R_OK | os.W_OK):
-                raise OptimizeError(f"--storage {url!r}: the database file {path} is not writable by this user")
+                raise OptimizeError(f"--storage {shown!r}: the database file {path} is not writable by this user")
             if writable and not os.access(path.parent, os.W_OK | os.X_OK):
-                raise OptimizeError(f"--storage {url!r}: folder {path.parent} is not writable (SQLite writes a "
+                raise OptimizeError(f"--storage {shown!r}: folder {path.parent} is not writable (SQLite writes a "
                                     "journal beside the database)")
     engine_kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
@@ -183,7 +218,8 @@ def open_storage(url: str, writable: bool = False, must_exist: bool = False) -> 
                 time.sleep(0.5 + attempt)
                 continue
             first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
-            raise OptimizeError(f"--storage {url!r} cannot be opened: {first}") from None
+            first = scrub_password(first, url)
+            raise OptimizeError(f"--storage {shown!r} cannot be opened: {first}") from None
     raise AssertionError("unreachable")
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from tumblebot.sim.design import PARAMETERS
 from tumblebot.sim.evaluate import Servo
 from tumblebot.sim.optimize import OptimizeError, open_storage
+from tumblebot.sim.optimize.storage import redact_url
 from tumblebot.sim.report.markdown import render_markdown
 from tumblebot.sim.report.plots import draw_plots
 from tumblebot.sim.report.tables import (
@@ -90,7 +91,8 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         slices = one_parameter_slices(ev, reference, slice_points)
     finally:
         ev.close()
-    data = {"storage": storage_url, "studies": [r.name for r in results], "episodes": episodes, "seed": seed,
+    data = {"storage": redact_url(storage_url), "studies": [r.name for r in results], "episodes": episodes,
+            "seed": seed,
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
             "controller": controller, "servo": servo.record(),

@@ -458,6 +458,7 @@ def _optimize(args: argparse.Namespace) -> int:
         open_study,
         optimize,
     )
+    from tumblebot.sim.optimize.storage import redact_url
     from tumblebot.sim.runner import EpisodeRunner
 
     objective, recipe, servo, controllers, config, name, storage_url = _optimize_plan(args)
@@ -470,7 +471,7 @@ def _optimize(args: argparse.Namespace) -> int:
         stored = load_config(study)
         if args.startup is None and stored is not None and stored.startup != recipe.startup:
             recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
-        print(f"study {name!r} in {storage_url}: {objective.describe()}, recipe {recipe.name} "
+        print(f"study {name!r} in {redact_url(storage_url)}: {objective.describe()}, recipe {recipe.name} "
               f"({recipe.trials} trials, {recipe.startup} random then "
               + ("a GP on R with e(w) exact" if recipe.name == "efficient" or objective.front else "GP-logEI")
               + f", batch {recipe.batch}"
@@ -484,7 +485,7 @@ def _optimize(args: argparse.Namespace) -> int:
                               episode_budget=args.episode_budget, should_stop=stop)
         except (StopRequested, KeyboardInterrupt):
             bar.close()
-            print(f"\nstopped; finished trials are kept in {storage_url}. Run the same command to resume.",
+            print(f"\nstopped; finished trials are kept in {redact_url(storage_url)}. Run the same command to resume.",
                   file=sys.stderr)
             return 130
         finally:

@@ -519,3 +519,35 @@ def test_that_optuna_dashboard_opens_a_study_from_the_same_storage_url(tmp_path:
     assert [s["study_name"] for s in summaries] == ["dash"]
     detail = get(f"/api/studies/{summaries[0]['study_id']}")
     assert len(detail["trials"]) == 3
+
+
+@pytest.mark.slow
+def test_that_the_storage_password_never_appears_in_output_or_report_files(postgres_url: str, tmp_path: Path) -> None:
+    """The lab's database password, given in the URL, is shown and stored as ``***``."""
+    secret = "s3cret-Pa55"
+    url = postgres_url.replace("tumblebot@", f"tumblebot:{secret}@")  # trust auth: the server ignores it
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "2", "--batch", "2", "--storage", url,
+             "--study", "secret", "--gait", "goto", "--json", str(tmp_path / "summary.json"))
+    assert run.returncode == 0, run.stderr
+    assert "tumblebot:***@" in run.stdout + run.stderr
+    out = tmp_path / "rep"
+    rep = tb("report", "--storage", url, "--study", "secret", "-o", str(out), "--episodes", "2", "--slice-points",
+             "2", "--quiet")
+    assert rep.returncode == 0, rep.stderr
+    assert json.loads((out / "report.json").read_text())["storage"].startswith("postgresql://tumblebot:***@")
+    refused = tb("optimize", "--tasks", "nav-flat", "--trials", "2", "--batch", "2", "--study", "x",
+                 "--storage", f"postgresql://tumblebot:{secret}@127.0.0.1:1/none")  # nothing listens there
+    assert refused.returncode == 2 and "cannot be opened" in refused.stderr
+    written = [p.read_text(errors="replace") for p in tmp_path.rglob("*") if p.is_file() and p.suffix != ".png"]
+    for text in (run.stdout, run.stderr, rep.stdout, rep.stderr, refused.stdout, refused.stderr, *written):
+        assert secret not in text
+
+
+def test_that_a_url_is_shown_without_its_password() -> None:
+    from tumblebot.sim.optimize.storage import redact_url, scrub_password
+
+    assert redact_url("postgresql://lab:hunter2@db:5432/tb") == "postgresql://lab:***@db:5432/tb"
+    assert redact_url("postgresql://lab@db/tb?password=hunter2&sslmode=require") == \
+        "postgresql://lab@db/tb?password=***&sslmode=require"
+    assert redact_url("sqlite:///runs/demo.db") == "sqlite:///runs/demo.db"
+    assert scrub_password("auth failed for p@ss", "postgresql://lab:p%40ss@db/tb") == "auth failed for ***"
