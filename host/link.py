@@ -12,6 +12,7 @@ HELLO again; nothing is sent under a session the agent has not confirmed.
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import random
@@ -82,11 +83,12 @@ class AgentClient:
         self.last_telemetry_at = -1e9  #: monotonic time of the last authenticated TELEMETRY
         self.last_telemetry: dict[str, Any] = {}
         self.last_request_at = -1e9
-        self._nonce = 0
+        self._nonces: collections.deque[int] = collections.deque(maxlen=8)  #: the latest telemetry requests'
         self._last_telemetry_counter: tuple[int, int] | None = None
         self.send_errors = 0
         self.unsent = 0
         self.sessions = 0  #: sessions adopted (more than one: the agent restarted)
+        self.foreign_telemetry = 0  #: authentic telemetry answering a request this client did not make
 
     @property
     def session(self) -> bytes | None:
@@ -137,10 +139,11 @@ class AgentClient:
         if self.keys is None or (now - self.last_telemetry_at > self.RESYNC_AFTER
                                  and now - self.last_request_at < self.RESYNC_AFTER):
             self.hello()  # no session yet, or requests go unanswered: the agent may have restarted
-        self._nonce = random.getrandbits(32)
+        nonce = random.getrandbits(32)
         self.last_request_at = now
         if self.keys is not None:
-            self._send(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(self._nonce))
+            self._nonces.append(nonce)
+            self._send(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(nonce))
 
     def _on_session(self, data: bytes, session: bytes) -> None:
         """A SESSION datagram claiming ``session`` (its key derives from that id)."""
@@ -185,6 +188,9 @@ class AgentClient:
             if not isinstance(body, dict) or (self._last_telemetry_counter is not None
                                               and stamp <= self._last_telemetry_counter):
                 continue  # not an object, or a replay of older telemetry
+            if body.get("nonce") not in self._nonces:
+                self.foreign_telemetry += 1
+                continue  # an answer to a request this client did not make (another host's)
             self._last_telemetry_counter = stamp
             self.last_telemetry_at = time.monotonic()
             self.last_telemetry = body

@@ -383,45 +383,51 @@ class Agent:
         if reason is not None:
             self._drop(reason)
             return
-        self.accepted += 1
+        self.accepted += 1  # counted before acting, so a telemetry reply counts its own request
         self.last_valid = now
-        self._act(d, source, now)
+        if not self._act(d, source, now):
+            self.accepted -= 1  # each datagram is counted once: accepted, or dropped for one reason
 
-    def _act(self, d: P.Datagram, source: tuple[str, int], now: float) -> None:
-        """An authentic, fresh datagram from the host (liveness already refreshed)."""
+    def _act(self, d: P.Datagram, source: tuple[str, int], now: float) -> bool:
+        """An authentic, fresh datagram from the host (liveness already refreshed); False
+        when it is dropped after all (rate-limited, or a trim while moving)."""
         if d.type == P.UdpType.COMMAND:
             command = P.unpack_command(d.payload)
             if self.pending is None and command == self.command:
-                return  # the command in force, repeated: a keepalive, which must not delay the next change
-            if self.pending is not None:
-                self._drop(P.DropReason.RATE_LIMITED, d.type)  # superseded before it acted
+                return True  # the command in force, repeated: a keepalive, which must not delay the next change
+            if self.pending is not None:  # the waiting one is superseded before it acted: it moves from
+                self.accepted -= 1        # accepted to rate_limited
+                self._drop(P.DropReason.RATE_LIMITED, d.type)
             self.pending = command
         elif d.type == P.UdpType.STOP:
             self.pending = None
             if self.command == (0, 0):
                 self._drop(P.DropReason.RATE_LIMITED, d.type)  # already stopped: the keepalive repeats it
-            else:
-                self._apply((0, 0), now)  # a stop never waits for a slot
+                return False
+            self._apply((0, 0), now)  # a stop never waits for a slot
         elif d.type == P.UdpType.SET_TRIM:
-            self._trim(d, now)
+            return self._trim(d, now)
         elif d.type == P.UdpType.TELEMETRY_REQUEST:
             if now - self.last_telemetry < TELEMETRY_INTERVAL:
                 self._drop(P.DropReason.RATE_LIMITED, d.type)
-                return
+                return False
             self.last_telemetry = now
             self._send_telemetry(source, P.unpack_nonce(d.payload), now)
+        return True
 
-    def _trim(self, d: P.Datagram, now: float) -> None:
+    def _trim(self, d: P.Datagram, now: float) -> bool:
         """Forward a SET_TRIM, only at rest and at most every TRIM_INTERVAL (EEPROM writes)."""
         if self.command != (0, 0) or self.pending is not None:
             self._drop(P.DropReason.BUSY, d.type)  # a trim changes the pulses: only at rest
-        elif now - self.last_trim < TRIM_INTERVAL:
+            return False
+        if now - self.last_trim < TRIM_INTERVAL:
             self._drop(P.DropReason.RATE_LIMITED, d.type)
-        else:
-            self.last_trim = now
-            if self.link.send(P.MsgType.SET_TRIM, d.payload, now):  # the firmware answers INFO
-                self.trims_forwarded += 1
-                self.link.info = None
+            return False
+        self.last_trim = now
+        if self.link.send(P.MsgType.SET_TRIM, d.payload, now):  # the firmware answers INFO
+            self.trims_forwarded += 1
+            self.link.info = None
+        return True
 
     def _apply(self, command: tuple[int, int], now: float) -> None:
         self.command = command

@@ -472,12 +472,20 @@ class KeyFileError(ValueError):
     """A key file that is missing, unreadable, the wrong size, or open to others."""
 
 
+MIN_KEY_DISTINCT_BYTES = 12  #: a random 32-byte key has about 30; fewer than this is not random
+
+
 def read_key_file(path: str | os.PathLike[str]) -> bytes:
-    """The 32-byte shared key from ``path``; refuses a file with any permission bit for
-    group or others (the agent's and the host's rule alike)."""
+    """The 32-byte shared key from ``path``; refuses what is not a regular file (a FIFO
+    would block the reader for ever), a file with any permission bit for group or others
+    (the agent's and the host's rule alike), and a key that is clearly not random (all
+    zeros, one byte repeated, a short pattern)."""
     try:
         st = os.stat(path)
-        with open(path, "rb") as fh:
+        if not stat.S_ISREG(st.st_mode):
+            raise KeyFileError(f"key file {path} is not a regular file")
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # never hangs, even if swapped for a FIFO
+        with os.fdopen(fd, "rb") as fh:
             data = fh.read(KEY_SIZE + 1)
     except FileNotFoundError:
         raise KeyFileError(f"key file {path} does not exist") from None
@@ -488,6 +496,9 @@ def read_key_file(path: str | os.PathLike[str]) -> bytes:
     if len(data) != KEY_SIZE:
         size = str(len(data)) if len(data) <= KEY_SIZE else "more"
         raise KeyFileError(f"key file {path} must hold exactly {KEY_SIZE} bytes, not {size}")
+    if len(set(data)) < MIN_KEY_DISTINCT_BYTES:
+        raise KeyFileError(f"key file {path} is not a random key ({len(set(data))} distinct byte values in "
+                           f"{KEY_SIZE}): make one with head -c 32 /dev/urandom")
     return data
 
 

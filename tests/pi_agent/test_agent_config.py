@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -35,15 +36,35 @@ def test_that_bad_configs_are_refused(tmp_path: Path, text: str, message: str) -
 
 def test_that_keys_must_be_32_bytes_and_private(tmp_path: Path) -> None:
     key = tmp_path / "k"
-    key.write_bytes(bytes(32))
+    key.write_bytes(bytes(range(32)))
     key.chmod(0o644)
     with pytest.raises(AgentError, match="accessible by group or others"):
         load_key(key)
     key.chmod(0o600)
-    assert load_key(key) == bytes(32)
-    key.write_bytes(bytes(31))
+    assert load_key(key) == bytes(range(32))
+    key.write_bytes(bytes(range(31)))
     with pytest.raises(AgentError, match="exactly 32 bytes"):
         load_key(key)
+
+
+@pytest.mark.parametrize("data", [bytes(32), b"\xff" * 32, b"ab" * 16, bytes(range(8)) * 4])
+def test_that_an_all_zero_or_repeated_key_is_refused(tmp_path: Path, data: bytes) -> None:
+    key = tmp_path / "k"
+    key.write_bytes(data)
+    key.chmod(0o600)
+    with pytest.raises(AgentError, match=r"is not a random key .* head -c 32 /dev/urandom"):
+        load_key(key)
+
+
+def test_that_a_fifo_key_file_is_refused_without_hanging(tmp_path: Path) -> None:
+    """A named pipe with mode 600 would block a plain open() until a writer came."""
+    fifo = tmp_path / "k"
+    os.mkfifo(fifo, 0o600)
+    result = subprocess.run([sys.executable, "-m", "tumblebot.pi_agent.agent", "--config",
+                             str(write(tmp_path / "a.toml", f'key_file = "{fifo}"\n'))],
+                            capture_output=True, text=True, timeout=60, check=False)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [f"tumblebot-agent: error: key file {fifo} is not a regular file"]
 
 
 def test_that_the_agent_command_prints_one_error_line_for_a_missing_config(tmp_path: Path) -> None:

@@ -98,3 +98,26 @@ def test_that_changes_still_act_at_most_every_100_ms(held: tuple[Agent, Clock]) 
     clock.now = start + 0.1
     agent.step(timeout=0)
     assert agent.command == (-1, -1)
+
+
+def _datagram(agent: Agent, counter: int, dtype: P.UdpType, payload: bytes = b"") -> bytes:
+    return P.encode_datagram(P.Datagram(dtype, 7, 1, counter, payload), agent.keys)
+
+
+def test_that_no_datagram_is_counted_both_accepted_and_rate_limited(held: tuple[Agent, Clock]) -> None:
+    """Superseded commands, repeated stops, telemetry floods and trims while moving: every
+    datagram lands in exactly one count."""
+    agent, clock = held
+    sent = [command(agent, 1, 1, 1), command(agent, 2, -1, -1), command(agent, 3, 1, 0),  # two superseded
+            _datagram(agent, 4, P.UdpType.SET_TRIM, P.trim_payload(0, 1510, 1)),  # busy: a command waits
+            *(_datagram(agent, 5 + k, P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(k)) for k in range(5))]
+    for data in sent:
+        agent.handle_datagram(data, HOST, clock.now)
+    agent.step(timeout=0)
+    clock.now += 0.2
+    agent.handle_datagram(_datagram(agent, 20, P.UdpType.STOP), HOST, clock.now)
+    agent.handle_datagram(_datagram(agent, 21, P.UdpType.STOP), HOST, clock.now)  # already stopped
+    total = len(sent) + 2
+    assert agent.accepted + sum(agent.drops.values()) == total
+    assert agent.drops["rate_limited"] == 2 + 4 + 1 and agent.drops["busy"] == 1
+    assert agent.accepted == 1 + 1 + 1  # the command that acted, one telemetry request, the first STOP

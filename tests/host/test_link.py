@@ -1,0 +1,51 @@
+"""The host's end of the UDP link against the real agent, in process (no serial device:
+pyserial's loop://)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from tumblebot.host.link import AgentClient
+from tumblebot.pi_agent.agent import Agent, AgentConfig
+
+KEY = bytes(range(32))
+
+
+@pytest.fixture
+def pair() -> Iterator[tuple[Agent, AgentClient]]:
+    agent = Agent(AgentConfig(serial_port="loop://", bind_address="127.0.0.1", bind_port=0,
+                              allowed_host="127.0.0.1"), KEY)
+    client = AgentClient(agent.address, KEY)
+    try:
+        yield agent, client
+    finally:
+        client.close()
+        agent.sock.close()
+
+
+def _until(agent: Agent, client: AgentClient, done: object, timeout: float = 10.0) -> list[dict[str, object]]:
+    bodies: list[dict[str, object]] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        agent.step(timeout=0.01)
+        bodies += client.poll()
+        if callable(done) and done(bodies):
+            break
+    return bodies
+
+
+def test_that_telemetry_answering_another_requester_is_ignored(pair: tuple[Agent, AgentClient]) -> None:
+    agent, client = pair
+    client.hello()
+    _until(agent, client, lambda _: client.session is not None)
+    assert client.session is not None
+    client.request_telemetry()
+    mine = _until(agent, client, lambda bodies: bool(bodies))
+    assert len(mine) == 1
+    own = ("127.0.0.1", client.sock.getsockname()[1])
+    agent._send_telemetry(own, nonce=0xC0FFEE, now=time.monotonic())  # authentic, but not an answer to us
+    time.sleep(0.2)
+    assert client.poll() == [] and client.foreign_telemetry == 1
