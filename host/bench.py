@@ -42,7 +42,8 @@ from tumblebot.pi_agent import protocol as P
 SERVOS = P.SERVOS
 CHECKS = ("agent", "arduino", "trims", "mocap", "still", "servos", "watchdog")
 ANSWER_WAIT = 5.0  #: s to wait for the agent, and then for its serial link
-TURN_SECONDS = 2.0  #: s each servo is told to turn, each way
+TURN_SECONDS = 3.0  #: s each servo is told to turn, each way (a leg in the air needs up to a turn to reach the floor)
+TURN_ATTEMPTS = 3  #: turns tried, each way, before a servo whose turn shows no roll is reported
 SETTLE_SECONDS = 1.0  #: s stopped before each observation
 STILL_SECONDS = 5.0  #: s the robot is watched while stopped
 NOMINAL_NEUTRAL_US = 1500  #: the neutral pulse of a standard continuous-rotation servo
@@ -352,18 +353,24 @@ def _turn_each_servo(bench: Bench) -> tuple[dict[str, list[str]], dict[str, list
             way = "forward" if sign > 0 else "in reverse"
             if bench.source is None:
                 bench.say(f"The {servo} leg turns {way} for {TURN_SECONDS:.0f} s now.")
-            poses = bench.run(TURN_SECONDS, (sign, 0) if i == 0 else (0, sign))
-            bench.stop()
-            poses += bench.run(SETTLE_SECONDS)
             if bench.source is None:
+                bench.run(TURN_SECONDS, (sign, 0) if i == 0 else (0, sign))
+                bench.stop()
                 assert bench.ask is not None
                 seen = bench.ask(f"Did the {servo} leg turn {way} (the way that rolls the robot "
                                  f"{'forward' if sign > 0 else 'backward'})?")
                 verdicts[servo].append("ok" if seen else "wrong")
                 continue
-            rolls[servo].append(body_roll(poses))
-            roll = rolls[servo][-1] * sign
-            verdicts[servo].append("ok" if roll > ROLL_SEEN else "reversed" if roll < -ROLL_SEEN else "unseen")
+            roll = 0.0
+            for _ in range(TURN_ATTEMPTS):  # the leg's phase differs each time: one that lifts the body shows
+                poses = bench.run(TURN_SECONDS, (sign, 0) if i == 0 else (0, sign))
+                bench.stop()
+                roll = body_roll(poses + bench.run(SETTLE_SECONDS))
+                if abs(roll) > ROLL_SEEN:
+                    break
+            rolls[servo].append(roll)
+            verdicts[servo].append("ok" if roll * sign > ROLL_SEEN else "reversed" if roll * sign < -ROLL_SEEN
+                                   else "unseen")
     return verdicts, rolls
 
 
