@@ -68,7 +68,7 @@ class Host:
                         self.keys = P.LinkKeys.derive(self.key, confirmed)
                         return confirmed
             except (TimeoutError, OSError):
-                time.sleep(0.25)  # the agent answers at most 5 HELLOs a second
+                time.sleep(0.25)  # no answer yet: say HELLO again (a new counter, so it is fresh)
         raise TimeoutError("no SESSION from the agent")
 
     def datagram(self, dtype: int, payload: bytes = b"", counter: int | None = None, key: bytes | None = None,

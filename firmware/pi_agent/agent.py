@@ -59,7 +59,6 @@ STATUS_INTERVAL = 1.0  #: s, ask the Arduino for its STATUS (reported in telemet
 INFO_INTERVAL = 0.5  #: s, ask the Arduino for its INFO (version, trims) until it answers
 TRIM_INTERVAL = 0.5  #: s, at most 2 SET_TRIMs a second (each one writes the Arduino's EEPROM)
 TELEMETRY_INTERVAL = 0.05  #: s, at most 20 telemetry replies per second
-SESSION_INTERVAL = 0.2  #: s, at most 5 SESSION replies per second
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
 SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
 SEQ_JUMP = 0x4000  #: how far the sequence jumps on OLD_SEQUENCE (at most three jumps get past any last seq)
@@ -346,7 +345,7 @@ class Agent:
         self.last_status_request = -1e9
         self.last_ping = -1e9
         self.last_telemetry = -1e9
-        self.last_session_reply = -1e9
+        self.hellos_answered = 0
         self.last_trim = -1e9
         self.trims_forwarded = 0
         now_ns = time.time_ns()
@@ -372,16 +371,13 @@ class Agent:
         except P.DatagramError as exc:
             self._drop(exc.code)
             return
-        if d.type == P.UdpType.HELLO:  # not session-bound, so it proves nothing: answer, rate-limited
-            if now - self.last_session_reply < SESSION_INTERVAL:
-                self._drop(P.DropReason.RATE_LIMITED, d.type)
-                return
-            self.last_session_reply = now
-            self._reply(P.UdpType.SESSION, P.session_payload(P.unpack_hello(d.payload), self.session), source)
-            return
-        reason = self.guard.check(d)
+        reason = self.guard.check(d)  # HELLOs too: a captured one is answered at most once per agent run
         if reason is not None:
             self._drop(reason)
+            return
+        if d.type == P.UdpType.HELLO:  # not session-bound, so it proves nothing: answered, nothing else
+            self.hellos_answered += 1
+            self._reply(P.UdpType.SESSION, P.session_payload(P.unpack_hello(d.payload), self.session), source)
             return
         self.accepted += 1  # counted before acting, so a telemetry reply counts its own request
         self.last_valid = now
@@ -447,7 +443,7 @@ class Agent:
         body = {"nonce": nonce, "command": list(self.command), "accepted": self.accepted,
                 "host_timeouts": self.host_timeouts, "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
                 "senders": len(self.guard), "senders_evicted": self.guard.evicted,
-                "trims_forwarded": self.trims_forwarded,
+                "trims_forwarded": self.trims_forwarded, "hellos_answered": self.hellos_answered,
                 **self.link.telemetry(now)}
         self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
 

@@ -121,3 +121,22 @@ def test_that_no_datagram_is_counted_both_accepted_and_rate_limited(held: tuple[
     assert agent.accepted + sum(agent.drops.values()) == total
     assert agent.drops["rate_limited"] == 2 + 4 + 1 and agent.drops["busy"] == 1
     assert agent.accepted == 1 + 1 + 1  # the command that acted, one telemetry request, the first STOP
+
+
+def test_that_a_replayed_hello_flood_does_not_keep_the_host_out(held: tuple[Agent, Clock],
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A HELLO captured before an agent restart, replayed 1000 times a second: answered
+    once; the real host's next HELLO is answered at once, so it has a session again."""
+    agent, clock = held
+    answered: list[int] = []
+    monkeypatch.setattr(agent, "_reply", lambda dtype, payload, dest: answered.append(P.unpack_session(payload)[0]))
+    hello_keys = P.LinkKeys.derive(KEY, bytes(P.SESSION_SIZE))
+    captured = P.encode_datagram(P.Datagram(P.UdpType.HELLO, 1, 1_700_000_000, 500, P.hello_payload(111)), hello_keys)
+    for k in range(1000):
+        clock.now += 0.001
+        agent.handle_datagram(captured, HOST, clock.now)
+    assert answered == [111] and agent.drops["replayed"] == 999
+    fresh = P.encode_datagram(P.Datagram(P.UdpType.HELLO, 1, 1_700_000_000, 501, P.hello_payload(222)), hello_keys)
+    agent.handle_datagram(fresh, HOST, clock.now)
+    assert answered == [111, 222]  # no rate limit the replays could have used up
+    assert agent.accepted == 0 and agent.command == (0, 0)  # a HELLO changes nothing else
