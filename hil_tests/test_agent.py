@@ -73,11 +73,11 @@ class Host:
 
     def datagram(self, dtype: int, payload: bytes = b"", counter: int | None = None, key: bytes | None = None,
                  sender: int | None = None) -> bytes:
+        if self.keys is None:
+            self.handshake()  # first: the HELLO's counter must be below this datagram's (both pass the replay check)
         if counter is None:
             self.counter += 1
             counter = self.counter
-        if self.keys is None:
-            self.handshake()
         assert self.keys is not None
         keys = self.keys if key is None else P.LinkKeys.derive(key, self.keys.session)
         return P.encode_datagram(P.Datagram(dtype, self.sender if sender is None else sender, self.epoch, counter,
