@@ -41,7 +41,7 @@ def link(stack: TwinStack) -> list[str]:
 
 
 def bench_check(stack: TwinStack) -> tuple[int, dict[str, dict[str, Any]]]:
-    run = tb("bench", "check", *link(stack), "--mocap", f"udp://127.0.0.1:{stack.pose_port}?body=tumbler", "--json")
+    run = tb("bench", "check", *link(stack), "--mocap", stack.mocap_url, "--json")
     assert run.stdout, run.stderr
     result = json.loads(run.stdout)
     assert result["passed"] == (run.returncode == 0)

@@ -106,7 +106,7 @@ def test_that_losing_mocap_in_the_twin_has_the_servos_neutral(tmp_path: Path) ->
 
     with TwinStack(tmp_path, XI3, seed=3) as stack:
         client = _connected_client(stack)
-        source = open_source(f"udp://127.0.0.1:{stack.pose_port}?body=tumbler")
+        source = open_source(stack.mocap_url)
         TwinPlacer(("127.0.0.1", stack.control_port)).place(0, (0.0, 0.0), 0.0)
         controller = TrialRunner(source, client, Forward(), (3.0, 0.0), 0.0, ControllerConfig(steps=30))
         results: list[TrialResult] = []

@@ -163,7 +163,7 @@ def _trial_analyze(args: argparse.Namespace) -> int:
 
 
 def _twin_world(args: argparse.Namespace) -> int:
-    from tumblebot.host.link import parse_address
+    from tumblebot.host.link import load_host_key, parse_address
     from tumblebot.host.twin import MOUNTING, ServoHardware, run_world
     from tumblebot.sim.design import Design
     from tumblebot.sim.physics import PhysicsProfile
@@ -171,8 +171,10 @@ def _twin_world(args: argparse.Namespace) -> int:
     right, left = (-MOUNTING[s] if s in args.reverse_servo else MOUNTING[s] for s in ("right", "left"))
     hardware = ServoHardware(neutral=args.servo_neutral, mounting=(right, left))
     physics = PhysicsProfile.load(args.world_physics) if args.world_physics is not None else None
+    pose_key = load_host_key(args.pose_key) if args.pose_key is not None else None
     return run_world(parse_address(args.pose_to), parse_address(args.control), args.serial_link,
-                     Design.parse(args.design), args.seed, servo=_servo_of(args), hardware=hardware, physics=physics)
+                     Design.parse(args.design), args.seed, servo=_servo_of(args), hardware=hardware, physics=physics,
+                     pose_key=pose_key)
 
 
 def _twin_run(args: argparse.Namespace) -> int:
@@ -478,6 +480,7 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
                    help="the world's servos' own neutral pulses, µs (default 1500,1500): one the firmware's trim "
                         "does not match creeps")
     w.add_argument("--world-physics", metavar="PROFILE", help="the world's physics profile (name or JSON file)")
+    w.add_argument("--pose-key", type=Path, metavar="FILE", help="sign the pose stream with this key file")
     w.add_argument("--reverse-servo", action="append", choices=("right", "left"), default=[],
                    help="mount this servo the other way round (a reversed servo, for bring-up tests)")
     _add_servo(w)

@@ -23,6 +23,8 @@ rush the controller.
 
 from __future__ import annotations
 
+import hmac
+import ipaddress
 import json
 import math
 import queue
@@ -36,9 +38,12 @@ from typing import Any, Protocol
 from urllib.parse import parse_qsl, urlsplit
 
 from tumblebot.errors import TumblebotError
+from tumblebot.pi_agent import protocol as P
 
-#: Datagram schema version of the UDP pose stream.
+#: Datagram schema versions of the UDP pose stream: 1 plain JSON, 2 signed (JSON + tag).
 POSE_STREAM_VERSION = 1
+SIGNED_POSE_VERSION = 2
+TAG_HEX = 2 * P.MAC_SIZE  #: the signature's length in hex digits
 DEFAULT_POSE_PORT = 47900
 MAX_POSE_DATAGRAM = 512
 
@@ -71,17 +76,32 @@ class Pose:
         return out
 
 
-def parse_pose_datagram(data: bytes, body: str | None, received: float) -> Pose:
-    """Decode one UDP pose-stream datagram (see docs/protocol.md); raises MocapError."""
+class PoseAuthError(MocapError):
+    """A pose datagram that is not signed with the stream's key (or is a replay)."""
+
+
+def parse_pose_datagram(data: bytes, body: str | None, received: float, key: bytes | None = None) -> Pose:
+    """Decode one UDP pose-stream datagram (see docs/protocol.md); raises MocapError.
+    With ``key`` (the stream's :func:`~tumblebot.pi_agent.protocol.pose_key`), only a
+    signed datagram (version 2, with ``seq``) whose signature verifies is accepted, checked
+    in constant time before its JSON is read."""
     if len(data) > MAX_POSE_DATAGRAM:
         raise MocapError(f"pose datagram of {len(data)} bytes (max {MAX_POSE_DATAGRAM})")
+    version = POSE_STREAM_VERSION
+    if key is not None:
+        data, tag = data[:-TAG_HEX], data[-TAG_HEX:]
+        if len(tag) != TAG_HEX or not hmac.compare_digest(P.pose_tag(key, data).encode(), tag):
+            raise PoseAuthError("pose datagram not signed with this stream's key")
+        version = SIGNED_POSE_VERSION
     try:
         msg = json.loads(data)
     except (UnicodeDecodeError, json.JSONDecodeError):
         raise MocapError("pose datagram is not JSON") from None
-    if not isinstance(msg, dict) or msg.get("v") != POSE_STREAM_VERSION:
+    if not isinstance(msg, dict) or msg.get("v") != version:
         raise MocapError(f"pose datagram version {msg.get('v') if isinstance(msg, dict) else None!r} "
-                         f"is not {POSE_STREAM_VERSION}")
+                         f"is not {version}")
+    if key is not None and msg.get("seq") is None:
+        raise MocapError("a signed pose datagram needs seq")
     if body is not None and msg.get("body") != body:
         raise MocapError(f"pose of body {msg.get('body')!r}, not {body!r}")
     p, q, t, seq = msg.get("p"), msg.get("q"), msg.get("t"), msg.get("seq")
@@ -101,11 +121,16 @@ def parse_pose_datagram(data: bytes, body: str | None, received: float) -> Pose:
     return Pose(received, (float(p[0]), float(p[1]), float(p[2])), (qn[0], qn[1], qn[2], qn[3]), float(t), seq)
 
 
-def encode_pose_datagram(body: str, seq: int, t: float, position: Any, quaternion: Any) -> bytes:
-    """One UDP pose-stream datagram (what the twin sends; a lab bridge writes the same)."""
-    return json.dumps({"v": POSE_STREAM_VERSION, "body": body, "seq": seq, "t": round(float(t), 6),
-                       "p": [round(float(v), 6) for v in position], "q": [round(float(v), 7) for v in quaternion]},
-                      separators=(",", ":")).encode()
+def encode_pose_datagram(body: str, seq: int, t: float, position: Any, quaternion: Any,
+                         key: bytes | None = None) -> bytes:
+    """One UDP pose-stream datagram (what the twin sends; a lab bridge writes the same).
+    With ``key`` (the shared 32-byte key, as the agent's) it is signed: version 2, the JSON
+    followed by 32 hex digits of HMAC-SHA256 under :func:`~tumblebot.pi_agent.protocol.pose_key`.
+    ``seq`` must then never go back, across restarts of the sender too."""
+    text = json.dumps({"v": SIGNED_POSE_VERSION if key is not None else POSE_STREAM_VERSION, "body": body,
+                       "seq": seq, "t": round(float(t), 6), "p": [round(float(v), 6) for v in position],
+                       "q": [round(float(v), 7) for v in quaternion]}, separators=(",", ":")).encode()
+    return text if key is None else text + P.pose_tag(P.pose_key(key), text).encode()
 
 
 class PoseSource(Protocol):
@@ -118,8 +143,15 @@ class PoseSource(Protocol):
 
 
 class UdpPoseSource:
-    def __init__(self, url: str, host: str, port: int, body: str | None) -> None:
+    """The UDP pose stream; with ``key`` only signed datagrams whose ``seq`` is above every
+    one accepted before (so no captured pose is replayed as a fresher one)."""
+
+    def __init__(self, url: str, host: str, port: int, body: str | None, key: bytes | None = None) -> None:
         self.url, self.body = url, body
+        self.key = None if key is None else P.pose_key(key)
+        self.last_seq: int | None = None
+        self.unauthenticated = 0  #: datagrams whose signature did not verify
+        self.replayed = 0  #: signed datagrams whose seq was not above the last accepted
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.bind((host, port))
@@ -146,10 +178,22 @@ class UdpPoseSource:
             except BlockingIOError:
                 break
             try:
-                out.append(parse_pose_datagram(data, self.body, time.monotonic()))
+                pose = parse_pose_datagram(data, self.body, time.monotonic(), self.key)
+            except PoseAuthError as exc:
+                self.unauthenticated += 1
+                self.last_error = str(exc)
+                continue
             except MocapError as exc:
                 self.malformed += 1
                 self.last_error = str(exc)
+                continue
+            if self.key is not None:
+                assert pose.seq is not None
+                if self.last_seq is not None and pose.seq <= self.last_seq:
+                    self.replayed += 1
+                    continue
+                self.last_seq = pose.seq
+            out.append(pose)
         return out
 
     def close(self) -> None:
@@ -294,6 +338,29 @@ def _float(query: dict[str, str], key: str, default: float, url: str) -> float:
     return value
 
 
+def _pose_stream_key(url: str, host: str, query: dict[str, str]) -> bytes | None:
+    """``key=PATH`` (the shared key file, checked as the agent's); without one, a source that
+    listens beyond loopback is refused unless ``insecure=1``: anyone on the network could
+    then steer the robot with forged poses."""
+    insecure = query.get("insecure", "0")
+    if insecure not in ("0", "1"):
+        raise MocapError(f"{url}: insecure must be 0 or 1")
+    if "key" in query:
+        try:
+            return P.read_key_file(query["key"])
+        except P.KeyFileError as exc:
+            raise MocapError(f"{url}: {exc}") from None
+    try:
+        loopback = ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+    except (OSError, ValueError):
+        raise MocapError(f"{url}: cannot resolve {host!r}") from None
+    if not loopback and insecure != "1":
+        raise MocapError(f"{url}: an unsigned pose stream listening on {host} lets anyone on the network forge "
+                         "the robot's pose; add key=PATH (the shared key; the sender signs with it), or "
+                         "insecure=1 on a network you trust")
+    return None
+
+
 def open_source(url: str) -> PoseSource:
     """Open the pose source ``url`` (see the module docs for the forms)."""
     parts = urlsplit(url)
@@ -305,7 +372,8 @@ def open_source(url: str) -> PoseSource:
             port = parts.port or DEFAULT_POSE_PORT
         except ValueError:
             raise MocapError(f"{url}: the port is not a number") from None
-        return UdpPoseSource(url, host, port, query.get("body"))
+        key = _pose_stream_key(url, host, query)
+        return UdpPoseSource(url, host, port, query.get("body"), key)
     if scheme == "motioncapture":
         system = parts.username or parts.hostname or ""
         if not system:

@@ -120,7 +120,10 @@ class _World:
         self.placed = False
         self.command = (0.0, 0.0)  #: the legs' commands now (right, left)
         self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
-        self.seq, self.sim_time, self.substeps = 0, 0.0, 0
+        # seq never goes back, across restarts of the world too (a signed stream requires it):
+        # milliseconds since the epoch at start, then one per frame (at most 1000 frames a second)
+        self.seq, self.sim_time, self.substeps = int(time.time() * 1000), 0.0, 0
+        self.pose_key: bytes | None = None  #: sign the poses with this key
         self.dropped = 0  #: substeps skipped because the world fell behind real time
         self.late = 0  #: substeps simulated more than ``LATE_SUBSTEPS`` behind real time
         self.wall0 = time.monotonic()
@@ -172,7 +175,8 @@ class _World:
             if self.substeps % self.pose_every == 0 and self.publish["on"]:
                 position, quaternion = self.env.base_pose()
                 self.seq += 1
-                self.out.sendto(encode_pose_datagram(self.body, self.seq, self.sim_time, position, quaternion),
+                self.out.sendto(encode_pose_datagram(self.body, self.seq, self.sim_time, position, quaternion,
+                                                     key=self.pose_key),
                                 self.pose_to)
         if due - 24 > self.substeps:
             self.dropped += due - 24 - self.substeps
@@ -182,7 +186,8 @@ class _World:
 
 def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
               body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None,
-              hardware: ServoHardware | None = None, physics: PhysicsProfile | None = None) -> int:
+              hardware: ServoHardware | None = None, physics: PhysicsProfile | None = None,
+              pose_key: bytes | None = None) -> int:
     """The world process: real-time physics, mocap out, servo pulses in. Runs until
     SIGTERM/SIGINT or a ``quit`` control datagram. ``physics``: a world the rest of the
     stack is not told about (its servo, floor, extra radio latency and motor noise),
@@ -193,6 +198,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     ctl.bind(control)
     ctl.setblocking(False)
     world = _World(env, uno, pose_to, body, pose_rate, hardware or ServoHardware())
+    world.pose_key = pose_key
     stop = {"now": False}
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -295,7 +301,7 @@ class TwinStack:
             [sys.executable, "-m", "tumblebot.cli", "twin", "world", "--pose-to", f"127.0.0.1:{self.pose_port}",
              "--control", f"127.0.0.1:{self.control_port}", "--serial-link", str(self.serial_link),
              "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
-             "--physics", str(workdir / "world-physics.json"), *(world_args or [])],
+             "--physics", str(workdir / "world-physics.json"), "--pose-key", str(self.key), *(world_args or [])],
             stdout=subprocess.PIPE, stderr=self.world_log, text=True)
         assert self.world.stdout is not None
         line = self.world.stdout.readline()
@@ -316,8 +322,13 @@ class TwinStack:
             self.agent.wait()
             self.agent = None
 
+    @property
+    def mocap_url(self) -> str:
+        """The twin's pose stream as the host reads it: signed with the stack's key."""
+        return f"udp://127.0.0.1:{self.pose_port}?body=tumbler&key={self.key}"
+
     def host_args(self) -> list[str]:
-        return ["--mocap", f"udp://127.0.0.1:{self.pose_port}?body=tumbler", "--agent",
+        return ["--mocap", self.mocap_url, "--agent",
                 f"127.0.0.1:{self.agent_port}", "--key", str(self.key), "--twin", f"127.0.0.1:{self.control_port}"]
 
     def close(self) -> None:

@@ -506,6 +506,17 @@ def _hmac(key: bytes, data: bytes) -> bytes:
     return hmac.new(key, data, hashlib.sha256).digest()
 
 
+def pose_key(key: bytes) -> bytes:
+    """The key of the signed pose stream (docs/protocol.md, "Pose stream"):
+    ``HMAC-SHA256(K, "tumblebot/2 pose")``, so a pose signature never verifies as a command."""
+    return _hmac(key, b"tumblebot/2 pose")
+
+
+def pose_tag(pose_key_: bytes, body: bytes) -> str:
+    """The 32 hex digits that sign a pose datagram's JSON ``body``."""
+    return _hmac(pose_key_, body)[:MAC_SIZE].hex()
+
+
 @dataclass(frozen=True)
 class LinkKeys:
     """The keys of one agent session, derived from the shared key (HKDF-style labels):

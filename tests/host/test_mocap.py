@@ -8,6 +8,7 @@ import math
 import socket
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -164,3 +165,60 @@ def test_that_source_clock_jumps_do_not_stall_the_filter() -> None:
     assert f.clock_resets == 1
     assert f.offer(pose(0.03, 0.03, seq=4, source_time=5.01))
     assert not f.lost(0.03 + 0.4) and f.lost(0.03 + 0.6)  # host time alone decides staleness
+
+
+def _send_all(addr: tuple[str, int], datagrams: list[bytes]) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for data in datagrams:
+            s.sendto(data, addr)
+
+
+def test_that_forged_replayed_or_altered_poses_never_reach_the_controller(tmp_path: Path) -> None:
+    """A sender without the key injects poses ahead of the genuine stream (walking away,
+    under the outlier limit), replays captured ones and alters a signed one: only the
+    genuine, signed, ever-newer poses come out of the source."""
+    import os
+
+    from tumblebot.host.link import new_key
+
+    key_file = tmp_path / "lab.key"
+    new_key(key_file)
+    key = key_file.read_bytes()
+    src = open_source(f"udp://127.0.0.1:0?body=tumbler&key={key_file}")
+    try:
+        addr = src.address  # type: ignore[attr-defined]
+        genuine = [encode_pose_datagram("tumbler", 1000 + k, 0.01 * k, (0.1, 0.2, 0.05), (0, 0, 0, 1), key=key)
+                   for k in range(5)]
+        forged = [encode_pose_datagram("tumbler", 2000 + k, 0.01 * k, (0.1 + 0.02 * k, 0.2, 0.05), (0, 0, 0, 1))
+                  for k in range(5)]  # unsigned, seq ahead
+        wrong_key = [encode_pose_datagram("tumbler", 3000, 0.1, (5.0, 0.2, 0.05), (0, 0, 0, 1), key=os.urandom(32))]
+        altered = bytearray(genuine[4])
+        altered[altered.index(b'"p":[0.1') + 5] = ord("9")  # 0.1 → 0.9 with the signature kept
+        _send_all(addr, [genuine[0], genuine[1], *forged, *wrong_key, bytes(altered), genuine[0], genuine[2],
+                         genuine[1], genuine[3]])
+        deadline = time.monotonic() + 5
+        poses: list[Any] = []
+        while len(poses) < 4 and time.monotonic() < deadline:
+            poses += src.poll(0.2)
+        time.sleep(0.2)
+        poses += src.poll(0.2)
+        assert [p.seq for p in poses] == [1000, 1001, 1002, 1003]
+        assert all(p.position[0] == 0.1 for p in poses)
+        assert src.unauthenticated == 5 + 1 + 1  # type: ignore[attr-defined]
+        assert src.replayed == 2  # type: ignore[attr-defined]
+    finally:
+        src.close()
+
+
+def test_that_an_unsigned_pose_stream_off_loopback_is_refused_unless_insecure(tmp_path: Path) -> None:
+    with pytest.raises(MocapError, match="lets anyone on the network forge the robot's pose; add key=PATH"):
+        open_source("udp://0.0.0.0:0?body=tumbler")
+    src = open_source("udp://0.0.0.0:0?body=tumbler&insecure=1")
+    src.close()
+    loose = tmp_path / "loose.key"
+    loose.write_bytes(bytes(range(32)))
+    loose.chmod(0o644)
+    with pytest.raises(MocapError, match="accessible by group or others"):
+        open_source(f"udp://0.0.0.0:0?body=tumbler&key={loose}")
+    with pytest.raises(MocapError, match="insecure must be 0 or 1"):
+        open_source("udp://127.0.0.1:0?body=tumbler&insecure=yes")

@@ -132,7 +132,7 @@ def test_that_a_replayed_hello_flood_does_not_keep_the_host_out(held: tuple[Agen
     monkeypatch.setattr(agent, "_reply", lambda dtype, payload, dest: answered.append(P.unpack_session(payload)[0]))
     hello_keys = P.LinkKeys.derive(KEY, bytes(P.SESSION_SIZE))
     captured = P.encode_datagram(P.Datagram(P.UdpType.HELLO, 1, 1_700_000_000, 500, P.hello_payload(111)), hello_keys)
-    for k in range(1000):
+    for _ in range(1000):
         clock.now += 0.001
         agent.handle_datagram(captured, HOST, clock.now)
     assert answered == [111] and agent.drops["replayed"] == 999
