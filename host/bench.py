@@ -193,8 +193,11 @@ def trims_of(body: dict[str, Any]) -> dict[str, dict[str, int]] | None:
     trims = firmware.get("trims") if isinstance(firmware, dict) else None
     if not isinstance(trims, dict) or set(trims) != set(SERVOS):
         return None
-    return {name: {"neutral_us": int(trims[name]["neutral_us"]), "direction": int(trims[name]["direction"])}
-            for name in SERVOS}
+    try:
+        return {name: {"neutral_us": int(trims[name]["neutral_us"]), "direction": int(trims[name]["direction"])}
+                for name in SERVOS}
+    except (KeyError, TypeError, ValueError):  # telemetry of an agent that is not this one's version
+        return None
 
 
 def format_trims(trims: dict[str, dict[str, int]]) -> str:
@@ -250,7 +253,8 @@ def _link_checks(bench: Bench) -> tuple[list[Check], dict[str, Any] | None]:
     if body is None:
         return [Check("agent", False, f"no answer from {bench.where()} within {ANSWER_WAIT:.0f} s",
                       "is the agent running, with this key, and this host its allowed_host?")], None
-    checks = [Check("agent", True, f"{bench.where()} answers ({1e3 * (time.monotonic() - started):.0f} ms)")]
+    waited = 1e3 * (time.monotonic() - started)
+    checks = [Check("agent", True, f"{bench.where()} answers (session and first telemetry in {waited:.0f} ms)")]
     body = bench.telemetry(ANSWER_WAIT, lambda b: bool(b.get("serial_connected")) and b.get("firmware") is not None)
     last = bench.agent.last_telemetry
     if body is None and not last.get("serial_connected"):
