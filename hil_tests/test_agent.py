@@ -46,6 +46,7 @@ class Host:
         self.keys: P.LinkKeys | None = None
         self.last_telemetry_wire = b""
         self.answered = -1.0  # time.monotonic() of the last telemetry reply
+        self.last_built = -1e9  # time.monotonic() of the last session datagram built
 
     def handshake(self, timeout: float = WAIT) -> bytes:
         """HELLO until a SESSION answers it; returns the session id."""
@@ -73,8 +74,11 @@ class Host:
 
     def datagram(self, dtype: int, payload: bytes = b"", counter: int | None = None, key: bytes | None = None,
                  sender: int | None = None) -> bytes:
+        if self.keys is not None and time.monotonic() - self.last_built > 0.8:
+            self.keys = None  # silent long enough for the agent to expire the session: HELLO first
         if self.keys is None:
             self.handshake()  # first: the HELLO's counter must be below this datagram's (both pass the replay check)
+        self.last_built = time.monotonic()
         if counter is None:
             self.counter += 1
             counter = self.counter

@@ -64,6 +64,9 @@ class AgentClient:
     """
 
     HELLO_INTERVAL = 0.2  #: s between HELLOs while there is no answer
+    #: s of its own silence after which the host takes its session as expired (the agent
+    #: expires it after 1 s without a valid datagram) and says HELLO before anything else
+    SESSION_IDLE = 0.8
     RESYNC_AFTER = 1.0  #: s without telemetry (while asking for it) before saying HELLO again
 
     def __init__(self, address: tuple[str, int], key: bytes, sender: int = 1) -> None:
@@ -83,6 +86,7 @@ class AgentClient:
         self.last_telemetry_at = -1e9  #: monotonic time of the last authenticated TELEMETRY
         self.last_telemetry: dict[str, Any] = {}
         self.last_request_at = -1e9
+        self.last_sent_at = -1e9  #: monotonic time of the last session datagram sent
         self._nonces: collections.deque[int] = collections.deque(maxlen=8)  #: the latest telemetry requests'
         self._last_telemetry_counter: tuple[int, int] | None = None
         self.send_errors = 0
@@ -95,18 +99,28 @@ class AgentClient:
         return None if self.keys is None else self.keys.session
 
     def _send(self, dtype: int, payload: bytes = b"") -> float:
+        now = time.monotonic()
+        if dtype != P.UdpType.HELLO and self.keys is not None and now - self.last_sent_at > self.SESSION_IDLE:
+            if dtype == P.UdpType.STOP:  # a stop goes out anyway: it acts if the session still lives
+                self._transmit(dtype, payload, self.keys)
+            self.keys = None  # silent too long: the agent has expired the session
         keys = self._hello_keys if dtype == P.UdpType.HELLO else self.keys
         if keys is None:
             self.unsent += 1
             self.hello()
             return time.monotonic()
+        if dtype != P.UdpType.HELLO:
+            self.last_sent_at = now
+        self._transmit(dtype, payload, keys)
+        return time.monotonic()
+
+    def _transmit(self, dtype: int, payload: bytes, keys: P.LinkKeys) -> None:
         self.counter += 1
         wire = P.encode_datagram(P.Datagram(dtype, self.sender, self.epoch, self.counter, payload), keys)
         try:
             self.sock.sendto(wire, self.address)
         except OSError:
             self.send_errors += 1  # e.g. no route while a cable is out: the watchdogs stop the robot
-        return time.monotonic()
 
     def hello(self) -> None:
         """Ask the agent for its session id (rate-limited to one per HELLO_INTERVAL)."""
@@ -158,6 +172,7 @@ class AgentClient:
         if nonce != self._hello_nonce:
             return  # an answer to an older HELLO (or a replayed one)
         self._hello_nonce = None
+        self.last_sent_at = time.monotonic()  # the agent has just kept (or begun) this session
         if session != self.session:
             self.keys = keys
             self.sessions += 1

@@ -14,7 +14,9 @@ standard library only. Behaviour (docs/protocol.md has the wire formats):
 * resends the current command to the Arduino every 100 ms (the firmware's watchdog
   stops the servos 250 ms after the last one) and PINGs it every 100 ms, whatever the
   command rate;
-* commands stop when no valid session datagram has arrived from the host for 1 s;
+* commands stop when no valid session datagram has arrived from the host for 1 s, and the
+  session expires then (a new session id): a command delivered late, after the host fell
+  silent, never verifies;
 * after opening the port (which resets an Uno) it waits for READY and adopts the boot
   epoch; any later firmware frame with another epoch is adopted as the live one. Its
   sequence numbers keep rising across epochs (a booted firmware takes any first seq), and
@@ -332,6 +334,9 @@ class Agent:
         self.link = SerialLink(config.serial_port, config.baud, serial_factory)
         self.session = os.urandom(P.SESSION_SIZE)  #: fresh at every start: old datagrams never verify
         self.keys = P.LinkKeys.derive(key, self.session)
+        self.session_used = False  #: a session datagram was accepted under this session id
+        self.last_hello = -1e9  #: a fresh HELLO keeps the session from expiring (not the robot moving)
+        self.sessions_expired = 0
         self.guard = P.ReplayGuard()
         self.drops: collections.Counter[str] = collections.Counter()
         self.rate_limited: collections.Counter[str] = collections.Counter()  #: rate_limited drops by type
@@ -375,12 +380,14 @@ class Agent:
         if reason is not None:
             self._drop(reason)
             return
-        if d.type == P.UdpType.HELLO:  # not session-bound, so it proves nothing: answered, nothing else
+        if d.type == P.UdpType.HELLO:  # not session-bound: answered, and the session kept, nothing else
             self.hellos_answered += 1
+            self.last_hello = now
             self._reply(P.UdpType.SESSION, P.session_payload(P.unpack_hello(d.payload), self.session), source)
             return
         self.accepted += 1  # counted before acting, so a telemetry reply counts its own request
         self.last_valid = now
+        self.session_used = True
         if not self._act(d, source, now):
             self.accepted -= 1  # each datagram is counted once: accepted, or dropped for one reason
 
@@ -425,6 +432,16 @@ class Agent:
             self.link.info = None
         return True
 
+    def _expire_session(self) -> None:
+        """The host fell silent for HOST_TIMEOUT: a new session id, so no datagram it sent
+        before (one lost or held back on the way, delivered late) can ever act; the host says
+        HELLO again before it sends anything more (docs/protocol.md, "Keys and sessions")."""
+        log.info("no valid datagram from the host for %.1f s: its session expires", HOST_TIMEOUT)
+        self.session = os.urandom(P.SESSION_SIZE)
+        self.keys = P.LinkKeys.derive(self.key, self.session)
+        self.session_used = False
+        self.sessions_expired += 1
+
     def _apply(self, command: tuple[int, int], now: float) -> None:
         self.command = command
         self.last_acted = now
@@ -444,6 +461,7 @@ class Agent:
                 "host_timeouts": self.host_timeouts, "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
                 "senders": len(self.guard), "senders_evicted": self.guard.evicted,
                 "trims_forwarded": self.trims_forwarded, "hellos_answered": self.hellos_answered,
+                "sessions_expired": self.sessions_expired,
                 **self.link.telemetry(now)}
         self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
 
@@ -466,6 +484,8 @@ class Agent:
             self.host_timeouts += 1
             self.pending = None
             self._apply((0, 0), now)
+        if self.session_used and now - max(self.last_valid, self.last_hello) > HOST_TIMEOUT:
+            self._expire_session()
         if now - self.last_keepalive >= KEEPALIVE_INTERVAL:
             self.last_keepalive = now
             self.link.send_speeds(*self.command, now)

@@ -49,3 +49,24 @@ def test_that_telemetry_answering_another_requester_is_ignored(pair: tuple[Agent
     agent._send_telemetry(own, nonce=0xC0FFEE, now=time.monotonic())  # authentic, but not an answer to us
     time.sleep(0.2)
     assert client.poll() == [] and client.foreign_telemetry == 1
+
+
+def test_that_a_host_silent_past_the_agents_timeout_says_hello_again_before_commanding(
+        pair: tuple[Agent, AgentClient]) -> None:
+    agent, client = pair
+    client.hello()
+    _until(agent, client, lambda _: client.session is not None)
+    first = client.session
+    client.request_telemetry()
+    _until(agent, client, lambda bodies: bool(bodies))
+    _until(agent, client, lambda _: False, timeout=1.2)  # the host says nothing; the agent runs on
+    assert agent.sessions_expired == 1 and agent.session != first
+    unsent = client.unsent
+    client.command(1, 1)  # silent too long: a HELLO goes out instead of the command
+    assert client.unsent == unsent + 1
+    _until(agent, client, lambda _: client.session is not None)
+    assert client.session == agent.session
+    client.command(1, 1)
+    _until(agent, client, lambda _: agent.pending == (1, 1) or agent.command == (1, 1), timeout=2.0)
+    assert (1, 1) in (agent.pending, agent.command)
+    client.stop()

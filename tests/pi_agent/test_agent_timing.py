@@ -140,3 +140,38 @@ def test_that_a_replayed_hello_flood_does_not_keep_the_host_out(held: tuple[Agen
     agent.handle_datagram(fresh, HOST, clock.now)
     assert answered == [111, 222]  # no rate limit the replays could have used up
     assert agent.accepted == 0 and agent.command == (0, 0)  # a HELLO changes nothing else
+
+
+def test_that_commands_held_back_and_delivered_after_the_host_fell_silent_never_act(held: tuple[Agent, Clock]
+                                                                                    ) -> None:
+    """Ten commands the host sent but that were lost (or held back on the path), delivered
+    10 s after the host fell silent, 0.9 s apart: the session expired with the host's
+    silence, so none verifies and the robot stays stopped."""
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    assert agent.command == (1, 1)
+    held_back = [command(agent, 2 + k, 1, 1) for k in range(10)]  # under the live session, never delivered
+    clock.now += HOST_TIMEOUT + 0.01
+    agent.step(timeout=0)
+    assert agent.command == (0, 0) and agent.sessions_expired == 1
+    clock.now += 10.0
+    for data in held_back:
+        clock.now += 0.9
+        agent.handle_datagram(data, HOST, clock.now)
+        agent.step(timeout=0)
+        assert agent.command == (0, 0)
+    assert agent.drops["unauthenticated"] == 10 and agent.accepted == 1
+
+
+def test_that_a_session_in_use_does_not_expire_and_an_unused_one_never_does(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    session = agent.session
+    clock.now += 60.0
+    agent.step(timeout=0)
+    assert agent.session == session  # no host yet: nothing to expire
+    for k in range(20):  # a host talking every 0.5 s keeps its session
+        agent.handle_datagram(command(agent, 1 + k, 0, 0), HOST, clock.now)
+        clock.now += 0.5
+        agent.step(timeout=0)
+    assert agent.session == session and agent.sessions_expired == 0
