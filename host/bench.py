@@ -242,6 +242,9 @@ def set_trim(bench: Bench, servo: str, neutral_us: int | None = None, nudge_us: 
         if body is not None:
             return before, wanted
     drops = bench.agent.last_telemetry.get("drops", {})
+    if drops.get("not_in_control"):
+        raise BenchError(f"another host (sender {bench.agent.last_telemetry.get('controller')}) controls the robot: "
+                         "pass --take-over to take control")
     raise BenchError(f"the firmware did not confirm the {servo} trim within {timeout:.0f} s "
                      f"(agent drops: {drops or 'none'}; is the robot stopped and the Arduino connected?)")
 
@@ -254,6 +257,10 @@ def _link_checks(bench: Bench) -> tuple[list[Check], dict[str, Any] | None]:
         return [Check("agent", False, f"no answer from {bench.where()} within {ANSWER_WAIT:.0f} s",
                       "is the agent running, with this key, and this host its allowed_host?")], None
     waited = 1e3 * (time.monotonic() - started)
+    controller = body.get("controller")
+    if controller not in (None, bench.agent.sender):
+        return [Check("agent", False, f"{bench.where()} answers, but another host (sender {controller}) controls "
+                                      "the robot", "pass --take-over to take control")], None
     checks = [Check("agent", True, f"{bench.where()} answers (session and first telemetry in {waited:.0f} ms)")]
     body = bench.telemetry(ANSWER_WAIT, lambda b: bool(b.get("serial_connected")) and b.get("firmware") is not None)
     last = bench.agent.last_telemetry

@@ -103,6 +103,10 @@ def _trial_run(args: argparse.Namespace) -> int:
             live.close()
         raise
     agent = AgentClient(address, key)
+    if args.take_over and not agent.claim_control():
+        source.close()
+        agent.close()
+        raise TumblebotError(f"--take-over: the agent at {args.agent} did not hand control to this host")
     placer = TwinPlacer(twin) if twin else OperatorPlacer(source, out=say, status=say_status)
     controller = TrialRunner(source, agent, policy, plan.setpoint, plan.heading, config)
 
@@ -247,8 +251,13 @@ def _bench(args: argparse.Namespace, with_mocap: bool, expected_neutral: tuple[i
     key = load_host_key(args.key)
     address = parse_address(args.agent)
     source = open_source(args.mocap) if with_mocap and args.mocap else None
-    return Bench(AgentClient(address, key), source, ask=operator_if_terminal(), say=say,
-                 expected_neutral=expected_neutral)
+    agent = AgentClient(address, key)
+    if args.take_over and not agent.claim_control():
+        agent.close()
+        if source is not None:
+            source.close()
+        raise TumblebotError(f"--take-over: the agent at {args.agent} did not hand control to this host")
+    return Bench(agent, source, ask=operator_if_terminal(), say=say, expected_neutral=expected_neutral)
 
 
 def _close(bench: Any) -> None:
@@ -309,6 +318,8 @@ def _add_link_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
     p.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    p.add_argument("--take-over", action="store_true",
+                   help="take control of the robot from another host on the same key (it is told, and stops)")
 
 
 def _microseconds(text: str) -> int:
@@ -414,6 +425,8 @@ def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--max-speed", type=float, default=3.0, help="m/s; faster pose jumps are outliers (3)")
     r.add_argument("--seed", type=int, default=0, help="seed of the placement headings and the twin's episodes")
     r.add_argument("--twin", help="HOST:PORT of a digital twin's world, which then places the robot itself")
+    r.add_argument("--take-over", action="store_true",
+                   help="take control of the robot from another host on the same key (it is told, and stops)")
     r.add_argument("--foxglove", metavar="[HOST:]PORT",
                    help="also stream the trials live to Foxglove: a WebSocket server on PORT (loopback unless HOST "
                         "is given; 0 picks a free port), carrying what the trial logs carry")

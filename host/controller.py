@@ -227,15 +227,21 @@ class TrialRunner:
                 return TrialResult("agent_lost", f"the agent at {self.agent.address[0]}:{self.agent.address[1]}"
                                    f" did not answer within {cfg.agent_timeout:.1f} s", 0)
             self.pump(0.02, log)
-        fault = self.link_fault(self.agent.last_telemetry)
+        fault = self.link_fault(self.agent.last_telemetry, sender=self.agent.sender)
         if fault is not None:
             return TrialResult(*fault, 0)
         return None
 
     @staticmethod
-    def link_fault(body: dict[str, Any], epoch: int | None = None) -> tuple[str, str] | None:
+    def link_fault(body: dict[str, Any], epoch: int | None = None, sender: int | None = None
+                   ) -> tuple[str, str] | None:
         """``(status, reason)`` if telemetry ``body`` says the robot cannot act on commands:
-        no serial link to the Arduino, or (given the trial's ``epoch``) a firmware reboot."""
+        no serial link to the Arduino, (given the trial's ``epoch``) a firmware reboot, or
+        (given this host's ``sender`` id) another host in control."""
+        controller = body.get("controller")
+        if sender is not None and controller is not None and controller != sender:
+            return ("taken_over", f"another host (sender {controller}) controls the robot: this one stops; run "
+                    "with --take-over to take control back")
         if body.get("serial_connected") is not True:
             return ("serial_lost", "the agent has no serial link to the Arduino (telemetry says serial_connected: "
                     "false): check the USB cable between the Pi and the Uno, and the Uno's power")
@@ -333,7 +339,7 @@ class TrialRunner:
         for body in self.agent.poll():
             if log is not None:
                 log.write("/telemetry", body)
-            fault = self.link_fault(body, state.epoch) or self._unacknowledged(body, state, now)
+            fault = self.link_fault(body, state.epoch, self.agent.sender) or self._unacknowledged(body, state, now)
             if fault is not None:
                 stop_sent = self.stop_robot(log, fault[0])
                 return TrialResult(*fault, state.decisions, latencies_ms=state.latencies,

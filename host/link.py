@@ -69,8 +69,10 @@ class AgentClient:
     SESSION_IDLE = 0.8
     RESYNC_AFTER = 1.0  #: s without telemetry (while asking for it) before saying HELLO again
 
-    def __init__(self, address: tuple[str, int], key: bytes, sender: int = 1) -> None:
-        self.address, self.key, self.sender = address, key, sender
+    def __init__(self, address: tuple[str, int], key: bytes, sender: int | None = None) -> None:
+        # A random sender id per host process: two hosts on one key never share replay state.
+        self.address, self.key = address, key
+        self.sender = sender if sender is not None else random.randrange(2, 2**32)
         now = time.time_ns()
         self.epoch = now // 1_000_000_000
         # A host restarted within the same second starts above anything the old one sent
@@ -137,6 +139,21 @@ class AgentClient:
 
     def stop(self) -> float:
         return self._send(P.UdpType.STOP)
+
+    def claim_control(self, timeout: float = 10.0) -> bool:
+        """TAKE_OVER until the agent's telemetry names this host the controlling one."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.take_over()
+            if self.telemetry_until(min(1.0, max(0.0, deadline - time.monotonic())),
+                                    lambda body: body.get("controller") == self.sender) is not None:
+                return True
+        return False
+
+    def take_over(self) -> float:
+        """Become the controlling host of the agent (the robot stops; the host that had
+        control sees it in telemetry and stops its trial)."""
+        return self._send(P.UdpType.TAKE_OVER)
 
     def set_trim(self, servo: int, neutral_us: int, direction: int) -> float:
         """Ask the agent to set a servo's trim (0 right, 1 left); it forwards it to the

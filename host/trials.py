@@ -230,7 +230,7 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
 
 
 LINK_CHECK_WAIT = 15.0  #: s a trial set waits at its start for the agent to report a live serial link
-LINK_FAULTS = ("serial_lost", "firmware_reboot", "no_ack")  #: aborts that say the robot could not act
+LINK_FAULTS = ("serial_lost", "firmware_reboot", "no_ack", "taken_over")  #: aborts that say the robot could not act
 
 
 def check_link(controller: TrialRunner, timeout: float) -> dict[str, Any]:
@@ -238,13 +238,13 @@ def check_link(controller: TrialRunner, timeout: float) -> dict[str, Any]:
     telemetry. Raises :class:`TrialError` (one line, saying which) when the agent does not
     answer or its serial link stays down for ``timeout`` s."""
     agent = controller.agent
-    body = agent.telemetry_until(timeout, lambda body: TrialRunner.link_fault(body) is None)
+    body = agent.telemetry_until(timeout, lambda body: TrialRunner.link_fault(body, sender=agent.sender) is None)
     if body is not None:
         return body
     if not agent.last_telemetry:
         where = f"{agent.address[0]}:{agent.address[1]}"
         raise TrialError(f"the agent at {where} did not answer within {timeout:.0f} s (is it running, with this key?)")
-    fault = TrialRunner.link_fault(agent.last_telemetry)
+    fault = TrialRunner.link_fault(agent.last_telemetry, sender=agent.sender)
     assert fault is not None
     raise TrialError(f"no trial started: {fault[1]} (waited {timeout:.0f} s; run the same command to resume)")
 

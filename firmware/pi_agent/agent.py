@@ -62,6 +62,7 @@ INFO_INTERVAL = 0.5  #: s, ask the Arduino for its INFO (version, trims) until i
 TRIM_INTERVAL = 0.5  #: s, at most 2 SET_TRIMs a second (each one writes the Arduino's EEPROM)
 TELEMETRY_INTERVAL = 0.05  #: s, at most 20 telemetry replies per second
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
+CONTROL_IDLE = 30.0  #: s the controlling host may be silent before another may command without TAKE_OVER
 SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
 SEQ_JUMP = 0x4000  #: how far the sequence jumps on OLD_SEQUENCE (at most three jumps get past any last seq)
 READY_TIMEOUT = 3.0  #: s to wait for READY after opening the port
@@ -335,6 +336,9 @@ class Agent:
         self.session = os.urandom(P.SESSION_SIZE)  #: fresh at every start: old datagrams never verify
         self.keys = P.LinkKeys.derive(key, self.session)
         self.session_used = False  #: a session datagram was accepted under this session id
+        self.controller: int | None = None  #: sender id of the controlling host
+        self.controller_seen = -1e9  #: when its last COMMAND, SET_TRIM or TAKE_OVER was accepted
+        self.takeovers = 0
         self.last_hello = -1e9  #: a fresh HELLO keeps the session from expiring (not the robot moving)
         self.sessions_expired = 0
         self.guard = P.ReplayGuard()
@@ -388,12 +392,37 @@ class Agent:
         self.accepted += 1  # counted before acting, so a telemetry reply counts its own request
         self.last_valid = now
         self.session_used = True
+        if d.sender == self.controller:
+            self.controller_seen = now  # any datagram of the controlling host keeps its control
         if not self._act(d, source, now):
             self.accepted -= 1  # each datagram is counted once: accepted, or dropped for one reason
 
+    def _in_control(self, d: P.Datagram, now: float) -> bool:
+        """Whether ``d``'s sender may move the robot: the controlling host is the first to
+        command it, and stays so while it sends anything at least every CONTROL_IDLE s;
+        another sender takes control only with TAKE_OVER (or once that host has gone quiet)."""
+        if d.type == P.UdpType.TAKE_OVER or self.controller is None or self.controller == d.sender \
+                or now - self.controller_seen > CONTROL_IDLE:
+            if self.controller is not None and self.controller != d.sender:
+                log.warning("host sender %d takes control from sender %d%s", d.sender, self.controller,
+                            " (TAKE_OVER)" if d.type == P.UdpType.TAKE_OVER else "")
+                self.takeovers += 1
+            self.controller, self.controller_seen = d.sender, now
+            return True
+        self._drop(P.DropReason.NOT_IN_CONTROL, d.type)
+        return False
+
     def _act(self, d: P.Datagram, source: tuple[str, int], now: float) -> bool:
         """An authentic, fresh datagram from the host (liveness already refreshed); False
-        when it is dropped after all (rate-limited, or a trim while moving)."""
+        when it is dropped after all (rate-limited, not the controlling host's, or a trim
+        while moving). A STOP is taken from any key holder, and telemetry answered for any."""
+        if d.type in (P.UdpType.COMMAND, P.UdpType.SET_TRIM, P.UdpType.TAKE_OVER) and not self._in_control(d, now):
+            return False
+        if d.type == P.UdpType.TAKE_OVER:
+            self.pending = None
+            if self.command != (0, 0):
+                self._apply((0, 0), now)  # the new host starts from a stopped robot
+            return True
         if d.type == P.UdpType.COMMAND:
             command = P.unpack_command(d.payload)
             if self.pending is None and command == self.command:
@@ -461,7 +490,8 @@ class Agent:
                 "host_timeouts": self.host_timeouts, "drops": dict(self.drops), "rate_limited": dict(self.rate_limited),
                 "senders": len(self.guard), "senders_evicted": self.guard.evicted,
                 "trims_forwarded": self.trims_forwarded, "hellos_answered": self.hellos_answered,
-                "sessions_expired": self.sessions_expired,
+                "sessions_expired": self.sessions_expired, "controller": self.controller,
+                "takeovers": self.takeovers,
                 **self.link.telemetry(now)}
         self._reply(P.UdpType.TELEMETRY, json.dumps(body, separators=(",", ":")).encode(), dest)
 

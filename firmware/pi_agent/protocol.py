@@ -422,6 +422,7 @@ class UdpType(enum.IntEnum):
     TELEMETRY_REQUEST = 0x12  #: payload: nonce u32
     HELLO = 0x13  #: payload: nonce u64; asks for the agent's session id
     SET_TRIM = 0x14  #: payload: as the serial SET_TRIM (servo u8, neutral_us u16, direction i8)
+    TAKE_OVER = 0x15  #: no payload; the sender becomes the controlling host (and the robot stops)
     TELEMETRY = 0x90  #: payload: UTF-8 JSON object
     SESSION = 0x91  #: payload: the HELLO's nonce u64, session id 8 bytes
 
@@ -429,7 +430,7 @@ class UdpType(enum.IntEnum):
 #: Exact payload sizes (None: any size up to the datagram limit).
 UDP_PAYLOAD_SIZES: dict[UdpType, int | None] = {
     UdpType.COMMAND: COMMAND_STRUCT.size, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: NONCE_STRUCT.size,
-    UdpType.HELLO: HELLO_STRUCT.size, UdpType.SET_TRIM: TRIM_STRUCT.size,
+    UdpType.HELLO: HELLO_STRUCT.size, UdpType.SET_TRIM: TRIM_STRUCT.size, UdpType.TAKE_OVER: 0,
     UdpType.TELEMETRY: None, UdpType.SESSION: SESSION_STRUCT.size,
 }
 TO_AGENT: frozenset[UdpType] = frozenset(t for t in UdpType if t < 0x80)
@@ -448,6 +449,7 @@ class DropReason(enum.Enum):
     REPLAYED = "replayed"  #: counter not above the last one seen for this sender and epoch
     RATE_LIMITED = "rate_limited"  #: over a message type's rate limit, or superseded within the 100 ms slot
     BUSY = "busy"  #: a SET_TRIM while the robot is commanded to move (trims change only at rest)
+    NOT_IN_CONTROL = "not_in_control"  #: a COMMAND or SET_TRIM from a host other than the controlling one
 
 
 class DatagramError(ProtocolError):

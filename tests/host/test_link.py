@@ -70,3 +70,21 @@ def test_that_a_host_silent_past_the_agents_timeout_says_hello_again_before_comm
     _until(agent, client, lambda _: agent.pending == (1, 1) or agent.command == (1, 1), timeout=2.0)
     assert (1, 1) in (agent.pending, agent.command)
     client.stop()
+
+
+def test_that_a_host_whose_control_was_taken_stops_its_trial_saying_why() -> None:
+    from tumblebot.host.controller import TrialRunner
+
+    body = {"serial_connected": True, "epoch": 3, "controller": 12345}
+    fault = TrialRunner.link_fault(body, 3, sender=777)
+    assert fault is not None and fault[0] == "taken_over" and "sender 12345" in fault[1] and "--take-over" in fault[1]
+    assert TrialRunner.link_fault({**body, "controller": 777}, 3, sender=777) is None
+    assert TrialRunner.link_fault({**body, "controller": None}, 3, sender=777) is None
+
+
+def test_that_two_host_processes_do_not_share_a_sender_id() -> None:
+    clients = [AgentClient(("127.0.0.1", 9), KEY) for _ in range(20)]
+    for client in clients:
+        client.close()
+    ids = {client.sender for client in clients}
+    assert len(ids) == 20 and all(i >= 2 for i in ids)

@@ -175,3 +175,28 @@ def test_that_a_session_in_use_does_not_expire_and_an_unused_one_never_does(held
         clock.now += 0.5
         agent.step(timeout=0)
     assert agent.session == session and agent.sessions_expired == 0
+
+
+def test_that_a_second_host_on_the_key_never_silently_takes_control_from_the_first(held: tuple[Agent, Clock]
+                                                                                   ) -> None:
+    agent, clock = held
+
+    def send(sender: int, counter: int, dtype: P.UdpType, payload: bytes = b"") -> None:
+        agent.handle_datagram(P.encode_datagram(P.Datagram(dtype, sender, 1, counter, payload), agent.keys), HOST,
+                              clock.now)
+        clock.now += 0.15
+        agent.step(timeout=0)
+
+    send(7, 1, P.UdpType.COMMAND, P.command_payload(1, 1))
+    assert agent.controller == 7 and agent.command == (1, 1)
+    send(9, 1, P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(1))  # watching is anyone's
+    send(9, 2, P.UdpType.COMMAND, P.command_payload(-1, -1))
+    send(9, 3, P.UdpType.SET_TRIM, P.trim_payload(0, 1510, 1))
+    assert agent.command == (1, 1) and agent.drops["not_in_control"] == 2 and agent.controller == 7
+    send(7, 2, P.UdpType.COMMAND, P.command_payload(1, 1))
+    send(9, 4, P.UdpType.STOP)  # any key holder may stop the robot
+    assert agent.command == (0, 0) and agent.controller == 7
+    send(9, 5, P.UdpType.TAKE_OVER)  # explicitly: the first host sees it in telemetry
+    assert agent.controller == 9 and agent.takeovers == 1
+    send(7, 3, P.UdpType.COMMAND, P.command_payload(1, 1))
+    assert agent.command == (0, 0) and agent.drops["not_in_control"] == 3
