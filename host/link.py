@@ -247,6 +247,10 @@ class AgentClient:
         return now - self.last_telemetry_at
 
     def close(self) -> None:
+        """Give up control of the robot (if this host had it), so the next host process may
+        command it without --take-over, and close the socket."""
+        if self.keys is not None:
+            self._transmit(P.UdpType.RELEASE, b"", self.keys)
         self.sock.close()
 
 

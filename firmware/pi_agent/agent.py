@@ -412,17 +412,27 @@ class Agent:
         self._drop(P.DropReason.NOT_IN_CONTROL, d.type)
         return False
 
+    def _hand_over(self, d: P.Datagram, now: float) -> None:
+        """TAKE_OVER: the sender controls the robot, which stops; RELEASE: the controlling
+        host gives control up (the next host to command takes it)."""
+        if d.type == P.UdpType.RELEASE:
+            if self.controller == d.sender:
+                self.controller = None
+            return
+        self._in_control(d, now)
+        self.pending = None
+        if self.command != (0, 0):
+            self._apply((0, 0), now)  # the new host starts from a stopped robot
+
     def _act(self, d: P.Datagram, source: tuple[str, int], now: float) -> bool:
         """An authentic, fresh datagram from the host (liveness already refreshed); False
         when it is dropped after all (rate-limited, not the controlling host's, or a trim
         while moving). A STOP is taken from any key holder, and telemetry answered for any."""
-        if d.type in (P.UdpType.COMMAND, P.UdpType.SET_TRIM, P.UdpType.TAKE_OVER) and not self._in_control(d, now):
-            return False
-        if d.type == P.UdpType.TAKE_OVER:
-            self.pending = None
-            if self.command != (0, 0):
-                self._apply((0, 0), now)  # the new host starts from a stopped robot
+        if d.type in (P.UdpType.TAKE_OVER, P.UdpType.RELEASE):
+            self._hand_over(d, now)
             return True
+        if d.type in (P.UdpType.COMMAND, P.UdpType.SET_TRIM) and not self._in_control(d, now):
+            return False
         if d.type == P.UdpType.COMMAND:
             command = P.unpack_command(d.payload)
             if self.pending is None and command == self.command:

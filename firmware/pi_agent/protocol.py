@@ -423,6 +423,7 @@ class UdpType(enum.IntEnum):
     HELLO = 0x13  #: payload: nonce u64; asks for the agent's session id
     SET_TRIM = 0x14  #: payload: as the serial SET_TRIM (servo u8, neutral_us u16, direction i8)
     TAKE_OVER = 0x15  #: no payload; the sender becomes the controlling host (and the robot stops)
+    RELEASE = 0x16  #: no payload; the controlling host gives up control (a host process says it as it ends)
     TELEMETRY = 0x90  #: payload: UTF-8 JSON object
     SESSION = 0x91  #: payload: the HELLO's nonce u64, session id 8 bytes
 
@@ -430,7 +431,7 @@ class UdpType(enum.IntEnum):
 #: Exact payload sizes (None: any size up to the datagram limit).
 UDP_PAYLOAD_SIZES: dict[UdpType, int | None] = {
     UdpType.COMMAND: COMMAND_STRUCT.size, UdpType.STOP: 0, UdpType.TELEMETRY_REQUEST: NONCE_STRUCT.size,
-    UdpType.HELLO: HELLO_STRUCT.size, UdpType.SET_TRIM: TRIM_STRUCT.size, UdpType.TAKE_OVER: 0,
+    UdpType.HELLO: HELLO_STRUCT.size, UdpType.SET_TRIM: TRIM_STRUCT.size, UdpType.TAKE_OVER: 0, UdpType.RELEASE: 0,
     UdpType.TELEMETRY: None, UdpType.SESSION: SESSION_STRUCT.size,
 }
 TO_AGENT: frozenset[UdpType] = frozenset(t for t in UdpType if t < 0x80)

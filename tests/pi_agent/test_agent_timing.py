@@ -200,3 +200,16 @@ def test_that_a_second_host_on_the_key_never_silently_takes_control_from_the_fir
     assert agent.controller == 9 and agent.takeovers == 1
     send(7, 3, P.UdpType.COMMAND, P.command_payload(1, 1))
     assert agent.command == (0, 0) and agent.drops["not_in_control"] == 3
+
+
+def test_that_a_host_that_ends_hands_control_to_the_next_without_take_over(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    for counter, dtype in enumerate((P.UdpType.COMMAND, P.UdpType.RELEASE), start=1):
+        payload = P.command_payload(0, 0) if dtype == P.UdpType.COMMAND else b""
+        agent.handle_datagram(P.encode_datagram(P.Datagram(dtype, 7, 1, counter, payload), agent.keys), HOST, clock.now)
+    assert agent.controller is None
+    agent.handle_datagram(command(agent, 3, 1, 1), HOST, clock.now)  # the next command takes control again
+    assert agent.controller == 7 and agent.drops.get("not_in_control", 0) == 0
+    other = P.encode_datagram(P.Datagram(P.UdpType.RELEASE, 9, 1, 1), agent.keys)
+    agent.handle_datagram(other, HOST, clock.now)  # only the controlling host can give control up
+    assert agent.controller == 7
