@@ -222,6 +222,11 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
             out(f"  trial aborted ({result.status}): {result.reason}; the robot was stopped. The trial will be redone.")
             if result.status == "agent_lost":
                 _wait_for_agent(controller, agent_wait, out)
+            elif result.status == "taken_over":
+                out("another host took control of the robot: waiting for it to give control back (it does as it "
+                    "ends)")
+                check_link(controller, agent_wait)
+                out("control is back; continuing")
             elif result.status in LINK_FAULTS:
                 out("waiting for the agent's serial link to the Arduino (check the USB cable and the servo supply)")
                 check_link(controller, agent_wait)
