@@ -339,6 +339,7 @@ class Agent:
         self.controller: int | None = None  #: sender id of the controlling host
         self.controller_seen = -1e9  #: when its last COMMAND, SET_TRIM or TAKE_OVER was accepted
         self.takeovers = 0
+        self.controller_spoke = False  #: the controlling host sent something under this session
         self.last_hello = -1e9  #: a fresh HELLO keeps the session from expiring (not the robot moving)
         self.sessions_expired = 0
         self.guard = P.ReplayGuard()
@@ -394,6 +395,7 @@ class Agent:
         self.session_used = True
         if d.sender == self.controller:
             self.controller_seen = now  # any datagram of the controlling host keeps its control
+            self.controller_spoke = True
         if not self._act(d, source, now):
             self.accepted -= 1  # each datagram is counted once: accepted, or dropped for one reason
 
@@ -407,7 +409,7 @@ class Agent:
                 log.warning("host sender %d takes control from sender %d%s", d.sender, self.controller,
                             " (TAKE_OVER)" if d.type == P.UdpType.TAKE_OVER else "")
                 self.takeovers += 1
-            self.controller, self.controller_seen = d.sender, now
+            self.controller, self.controller_seen, self.controller_spoke = d.sender, now, True
             return True
         self._drop(P.DropReason.NOT_IN_CONTROL, d.type)
         return False
@@ -418,6 +420,9 @@ class Agent:
         if d.type == P.UdpType.RELEASE:
             if self.controller == d.sender:
                 self.controller = None
+                self.pending = None
+                if self.command != (0, 0):
+                    self._apply((0, 0), now)  # nobody controls a moving robot
             return
         self._in_control(d, now)
         self.pending = None
@@ -479,6 +484,7 @@ class Agent:
         self.session = os.urandom(P.SESSION_SIZE)
         self.keys = P.LinkKeys.derive(self.key, self.session)
         self.session_used = False
+        self.controller_spoke = False
         self.sessions_expired += 1
 
     def _apply(self, command: tuple[int, int], now: float) -> None:
@@ -519,13 +525,16 @@ class Agent:
         if self.pending is not None and now - self.last_acted >= COMMAND_INTERVAL:
             command, self.pending = self.pending, None
             self._apply(command, now)
-        if self.command != (0, 0) and now - self.last_valid > HOST_TIMEOUT:
-            log.warning("no valid datagram from the host for %.1f s: stopping", HOST_TIMEOUT)
+        if self.command != (0, 0) and now - self.controller_seen > HOST_TIMEOUT:
+            # only the controlling host keeps the robot moving: another's telemetry requests do not
+            log.warning("no valid datagram from the controlling host for %.1f s: stopping", HOST_TIMEOUT)
             self.host_timeouts += 1
             self.pending = None
             self._apply((0, 0), now)
-        if self.session_used and now - max(self.last_valid, self.last_hello) > HOST_TIMEOUT:
-            self._expire_session()
+        host_silent = now - max(self.last_valid, self.last_hello) > HOST_TIMEOUT
+        controller_silent = self.controller_spoke and now - self.controller_seen > HOST_TIMEOUT
+        if self.session_used and (host_silent or controller_silent):
+            self._expire_session()  # (even while another host talks: the controller's old datagrams never act)
         if now - self.last_keepalive >= KEEPALIVE_INTERVAL:
             self.last_keepalive = now
             self.link.send_speeds(*self.command, now)

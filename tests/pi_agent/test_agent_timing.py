@@ -213,3 +213,39 @@ def test_that_a_host_that_ends_hands_control_to_the_next_without_take_over(held:
     other = P.encode_datagram(P.Datagram(P.UdpType.RELEASE, 9, 1, 1), agent.keys)
     agent.handle_datagram(other, HOST, clock.now)  # only the controlling host can give control up
     assert agent.controller == 7
+
+
+def test_that_another_hosts_telemetry_requests_do_not_keep_the_robot_moving(held: tuple[Agent, Clock]) -> None:
+    """The controlling host dies while the robot drives; a second host on the key keeps
+    asking for telemetry: the robot still stops one second after the controller's last word."""
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    assert agent.command == (1, 1)
+    last_word = clock.now
+    for k in range(20):
+        clock.now += 0.1
+        request = P.Datagram(P.UdpType.TELEMETRY_REQUEST, 9, 1, 1 + k, P.nonce_payload(k))
+        agent.handle_datagram(P.encode_datagram(request, agent.keys), HOST, clock.now)
+        agent.step(timeout=0)
+        if clock.now - last_word > HOST_TIMEOUT + 0.05:
+            assert agent.command == (0, 0)
+    assert agent.command == (0, 0) and agent.host_timeouts == 1
+
+
+def test_that_the_controllers_held_back_commands_never_act_while_another_host_talks(held: tuple[Agent, Clock]
+                                                                                     ) -> None:
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    held_back = [command(agent, 2 + k, 1, 1) for k in range(5)]
+    for k in range(30):  # a second host keeps the link busy with telemetry requests
+        clock.now += 0.1
+        request = P.Datagram(P.UdpType.TELEMETRY_REQUEST, 9, 1, 1 + k, P.nonce_payload(k))
+        agent.handle_datagram(P.encode_datagram(request, agent.keys), HOST, clock.now)
+        agent.step(timeout=0)
+    assert agent.sessions_expired == 1 and agent.command == (0, 0)
+    for data in held_back:
+        agent.handle_datagram(data, HOST, clock.now)
+        agent.step(timeout=0)
+    assert agent.command == (0, 0) and agent.drops["unauthenticated"] >= 5
