@@ -62,7 +62,9 @@ INFO_INTERVAL = 0.5  #: s, ask the Arduino for its INFO (version, trims) until i
 TRIM_INTERVAL = 0.5  #: s, at most 2 SET_TRIMs a second (each one writes the Arduino's EEPROM)
 TELEMETRY_INTERVAL = 0.05  #: s, at most 20 telemetry replies per second
 HOST_TIMEOUT = 1.0  #: s without a valid datagram: stop
-CONTROL_IDLE = 30.0  #: s the controlling host may be silent before another may command without TAKE_OVER
+#: s of silence after which the controlling host's control lapses (its robot stopped a second
+#: earlier): a host restarted after a crash resumes, and telemetry says nobody is in control
+CONTROL_IDLE = 2.0
 SERIAL_SILENCE = 1.0  #: s without any frame from the Arduino while pinging: reconnect
 SEQ_JUMP = 0x4000  #: how far the sequence jumps on OLD_SEQUENCE (at most three jumps get past any last seq)
 READY_TIMEOUT = 3.0  #: s to wait for READY after opening the port
@@ -531,6 +533,10 @@ class Agent:
             self.host_timeouts += 1
             self.pending = None
             self._apply((0, 0), now)
+        if self.controller is not None and now - self.controller_seen > CONTROL_IDLE:
+            log.info("the controlling host (sender %d) has been silent %.0f s: nobody is in control",
+                     self.controller, CONTROL_IDLE)
+            self.controller = None
         host_silent = now - max(self.last_valid, self.last_hello) > HOST_TIMEOUT
         controller_silent = self.controller_spoke and now - self.controller_seen > HOST_TIMEOUT
         if self.session_used and (host_silent or controller_silent):

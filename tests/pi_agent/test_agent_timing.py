@@ -249,3 +249,16 @@ def test_that_the_controllers_held_back_commands_never_act_while_another_host_ta
         agent.handle_datagram(data, HOST, clock.now)
         agent.step(timeout=0)
     assert agent.command == (0, 0) and agent.drops["unauthenticated"] >= 5
+
+
+def test_that_a_host_killed_without_a_word_loses_control_so_its_restart_resumes(held: tuple[Agent, Clock]) -> None:
+    agent, clock = held
+    agent.handle_datagram(command(agent, 1, 1, 1), HOST, clock.now)
+    agent.step(timeout=0)
+    assert agent.controller == 7
+    clock.now += 2.1  # kill -9: no RELEASE
+    agent.step(timeout=0)
+    assert agent.controller is None and agent.command == (0, 0)
+    restarted = P.Datagram(P.UdpType.COMMAND, 9, 2, 1, P.command_payload(1, 0))
+    agent.handle_datagram(P.encode_datagram(restarted, agent.keys), HOST, clock.now)
+    assert agent.controller == 9 and agent.drops.get("not_in_control", 0) == 0
