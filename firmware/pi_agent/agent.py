@@ -14,9 +14,11 @@ standard library only. Behaviour (docs/protocol.md has the wire formats):
 * resends the current command to the Arduino every 100 ms (the firmware's watchdog
   stops the servos 250 ms after the last one) and PINGs it every 100 ms, whatever the
   command rate;
-* commands stop when no valid session datagram has arrived from the host for 1 s, and the
-  session expires then (a new session id): a command delivered late, after the host fell
-  silent, never verifies;
+* one host controls the robot at a time (the first to command it; another takes over only
+  with TAKE_OVER, or after 2 s of its silence); anyone with the key may stop it or watch;
+* commands stop when no valid datagram has arrived from the controlling host for 1 s, and
+  the session expires then (a new session id): a command delivered late, after the host
+  fell silent, never verifies;
 * after opening the port (which resets an Uno) it waits for READY and adopts the boot
   epoch; any later firmware frame with another epoch is adopted as the live one. Its
   sequence numbers keep rising across epochs (a booted firmware takes any first seq), and
