@@ -219,10 +219,9 @@ def _twin_check(args: argparse.Namespace) -> int:
 
 
 def _servo_of(args: argparse.Namespace) -> Any:
-    from tumblebot.sim.physics import THESIS, PhysicsProfile
+    from tumblebot.sim.physics import PhysicsProfile
 
-    base = PhysicsProfile.load(args.physics) if args.physics is not None else THESIS
-    return PhysicsProfile.of(args.motor_model, args.stall_torque, base)
+    return PhysicsProfile.from_arguments(args.physics, args.motor_model, args.stall_torque)
 
 
 def _add_servo(p: argparse.ArgumentParser) -> None:

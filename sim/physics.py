@@ -137,6 +137,12 @@ class PhysicsProfile:
         return replace(changed, name=f"{base.name}, {changed.motor_model} {changed.stall_torque:.3g} N·m")
 
     @classmethod
+    def from_arguments(cls, physics: str | None, model: str | None, stall_torque: float | None) -> PhysicsProfile:
+        """The profile of ``--physics`` (default ``thesis``) with the ``--motor-model`` and
+        ``--stall-torque`` shorthands applied: what every command that runs episodes takes."""
+        return cls.of(model, stall_torque, cls.load(physics) if physics is not None else THESIS)
+
+    @classmethod
     def from_card(cls, data: dict[str, Any]) -> PhysicsProfile:
         """What a model card, study, twin record or report stored: a whole profile (with
         its digest), or, from before profiles, only ``{"motor_model", "stall_torque"}``."""

@@ -529,10 +529,9 @@ def _report(args: argparse.Namespace) -> int:
 def _servo(args: argparse.Namespace) -> Any:
     """The physics profile of ``--physics`` (default ``thesis``) with the ``--motor-model``
     and ``--stall-torque`` shorthands applied."""
-    from tumblebot.sim.physics import THESIS, PhysicsProfile
+    from tumblebot.sim.physics import PhysicsProfile
 
-    base = PhysicsProfile.load(args.physics) if args.physics is not None else THESIS
-    return PhysicsProfile.of(args.motor_model, args.stall_torque, base)
+    return PhysicsProfile.from_arguments(args.physics, args.motor_model, args.stall_torque)
 
 
 def _check_writable(path: Path, flag: str) -> None:
