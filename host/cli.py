@@ -59,7 +59,9 @@ def _trial_policy(args: argparse.Namespace, design: Any, task: str) -> tuple[Any
         if args.policy is not None:
             raise TumblebotError("give --policy or --gait, not both")
         if args.gait != "goto":
-            raise TumblebotError(f"--gait {args.gait!r}: the host drives trials with a policy or with goto")
+            from tumblebot.sim.gaits import GaitPolicy
+
+            return GaitPolicy(args.gait, args.seed), args.gait  # an unknown gait is one error line
         from tumblebot.sim.goto import GotoPolicy
 
         return GotoPolicy(args.steps), "goto"
@@ -188,7 +190,11 @@ def _twin_run(args: argparse.Namespace) -> int:
     servo = _servo_of(args)
     from tumblebot.sim.evaluate import Controller
 
-    Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
+    if args.policy != "excite":
+        Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
+    elif args.check:
+        raise TumblebotError("--check compares a policy's trials with simulation; the identification run (--policy "
+                             "excite) is for tumblebot calibrate")
     if args.foxglove is not None:
         from tumblebot.host.live import parse_listen
 
@@ -313,6 +319,16 @@ def _bench_check(args: argparse.Namespace) -> int:
     return 0 if passed else 1
 
 
+def _bench_excite(args: argparse.Namespace) -> int:
+    """The identification run: ``trial run --gait excite`` with the trial protocol's defaults."""
+    if args.points < 1 or args.per_point < 1:
+        raise TumblebotError("--points and --per-point must be at least 1")
+    run = argparse.Namespace(**vars(args), gait="excite", policy=None, heading=0.0, steps=20, period=1.0,
+                             lost_after=0.5, agent_timeout=1.5, agent_wait=300.0, max_speed=3.0, foxglove=None,
+                             print_writes=False)
+    return _trial_run(run)
+
+
 def _add_link_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
     p.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
@@ -370,7 +386,7 @@ def _add_bench_commands(sub: Any) -> None:
     t.set_defaults(func=_trim)
     b = sub.add_parser("bench", help="bring-up checks before a trial set",
                        description="Bring-up checks of the robot through its agent.")
-    bsub = b.add_subparsers(dest="bench_command", required=True, metavar="{check}")
+    bsub = b.add_subparsers(dest="bench_command", required=True, metavar="{check,excite}")
     c = bsub.add_parser("check", help="is the robot ready for a trial set? one line per check",
                         description="Check, one line each: the agent answers; the Arduino is connected (epoch, "
                                     "firmware version); its trims; the motion capture sees the robot with z up; the "
@@ -384,13 +400,103 @@ def _add_bench_commands(sub: Any) -> None:
                    help="the servos' neutral pulses the trim procedure found, µs: the trims must be these "
                         "(default: each within 50 µs of 1500)")
     c.set_defaults(func=_bench_check)
+    e = bsub.add_parser("excite", help="the identification run: scripted drives, spins and stops, logged for calibrate",
+                        description="A trial set of scripted commands instead of a policy: drives both ways, spins "
+                                    "both ways, one leg at a time and stops after motion (20 steps a trial), from "
+                                    "the trial protocol's start points, logged like any trial (resume it with the "
+                                    "same command). tumblebot calibrate takes it and ordinary trials alike. The "
+                                    "robot moves about a metre from each start point: give it room.")
+    _add_link_args(e)
+    e.add_argument("--mocap", required=True, help="pose source, as for trial run (udp://HOST:PORT?body=B, …)")
+    e.add_argument("--out", type=Path, required=True, help="trial-set folder (created; an existing one is resumed)")
+    e.add_argument("--design", required=True, help="the robot's design x,y,z,l (m)")
+    e.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="centre of the start circle X,Y (default 0,0)")
+    e.add_argument("--radius", type=float, default=1.0, help="start circle radius, m (default 1)")
+    e.add_argument("--points", type=int, default=5, help="start points (default 5)")
+    e.add_argument("--per-point", type=int, default=3, help="runs per start point (default 3)")
+    e.add_argument("--seed", type=int, default=0, help="seed of the placement headings (default 0)")
+    e.add_argument("--twin", help="HOST:PORT of a digital twin's world, which then places the robot itself")
+    e.set_defaults(func=_bench_excite)
 
 
-def add_commands(sub: Any, positive_int: Any) -> None:
-    """Add ``trial``, ``twin``, ``trim`` and ``bench`` to the ``tumblebot`` parser's subcommands."""
+def add_commands(sub: Any, positive_int: Any, check_writable: Any) -> None:
+    """Add ``trial``, ``twin``, ``trim``, ``bench`` and ``calibrate`` to the ``tumblebot``
+    parser's subcommands."""
     _add_trial_commands(sub, positive_int)
     _add_twin_commands(sub, positive_int)
     _add_bench_commands(sub)
+    _add_calibrate_command(sub, positive_int, check_writable)
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from tumblebot.host.calibrate import describe, run_calibration
+    from tumblebot.sim.calibration import Settings
+    from tumblebot.sim.design import Design
+    from tumblebot.sim.physics import PhysicsProfile
+
+    if args.output.suffix != ".json":
+        raise TumblebotError(f"-o {args.output}: a physics profile is a .json file")
+    plot = args.plot if args.plot is not None else args.output.with_name("calibration.png")
+    if plot.suffix != ".png":
+        raise TumblebotError(f"--plot {plot}: the picture is a .png file")
+    args.check_writable(args.output, "-o")
+    args.check_writable(plot, "--plot")
+    prior = PhysicsProfile.load(args.prior)
+    design = Design.parse(args.design).as_tuple() if args.design is not None else None
+    settings = Settings(design_points=args.budget, seed=args.seed)
+    from tumblebot.host.calibrate import load_trials
+
+    load_trials(args.trialdir, design)  # every log is checked before any work or write
+    quiet = args.json
+
+    def note(line: str) -> None:
+        if not quiet:
+            say(line)
+
+    try:
+        result = run_calibration(args.trialdir, args.output, prior, design, args.workers, settings, plot, note,
+                                 progress=not quiet and sys.stderr.isatty())
+    except KeyboardInterrupt:
+        from tumblebot.host.calibrate import cache_path
+
+        print(f"\nstopped; nothing was written but the simulations so far ({cache_path(args.output)}): run the "
+              "same command to resume", file=sys.stderr)
+        return 130
+    if args.json:
+        print(json.dumps({"parameters": {k: {f: v[f] for f in ("value", "low", "high", "identifiable", "unit",
+                                                                 "kept_prior", "effect", "why")}
+                                         for k, v in result.parameters.items()},
+                          "fit": result.fit, "profile": result.profile.record(), "plot": str(plot)}))
+        return 0
+    for line in describe(result):
+        say(line)
+    say(f"wrote {args.output} and {plot}; next: tumblebot optimize --physics {args.output}, "
+        f"tumblebot report --physics {args.output}")
+    return 0
+
+
+def _add_calibrate_command(sub: Any, positive_int: Any, check_writable: Any) -> None:
+    c = sub.add_parser(
+        "calibrate", help="fit a physics profile to trial logs: the simulator of the robot the lab built",
+        description="Re-simulate each logged trial from its start pose and leg commands under candidate physics "
+                    "profiles and fit the profile under which the simulated motion matches what the motion capture "
+                    "saw (per-step distance and turn, how soon steps get under way). Prints each parameter with a "
+                    "90 % interval, or says that the logs cannot pin it down (it then keeps the prior's value); "
+                    "writes the profile and calibration.png. Ctrl-C is safe and the same command resumes.")
+    c.add_argument("trialdir", type=Path, nargs="+", metavar="TRIALDIR",
+                   help="trial-set folders (tumblebot trial run, bench excite or twin run)")
+    c.add_argument("-o", "--output", type=Path, required=True, metavar="PROFILE", help="the fitted profile (.json)")
+    c.add_argument("--prior", default="thesis", metavar="NAME|FILE",
+                   help="the profile to start from; kept for what the logs cannot identify (default thesis)")
+    c.add_argument("--design", help="refuse logs of any other design x,y,z,l (m)")
+    c.add_argument("--plot", type=Path, help="the fit's picture (default calibration.png beside PROFILE)")
+    c.add_argument("--budget", type=positive_int, default=128,
+                   help="simulated trial sets in the first round (default 128; the second has half)")
+    c.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the fit's designs and simulations (default 0)")
+    c.add_argument("--json", action="store_true",
+                   help='print {"parameters": {NAME: {"value", "low", "high", "identifiable", ...}}, "fit": {...}}')
+    c.set_defaults(func=_calibrate, check_writable=check_writable)
 
 
 def _add_trial_commands(sub: Any, positive_int: Any) -> None:
@@ -409,8 +515,9 @@ def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
     r.add_argument("--design", required=True, help="the robot's design x,y,z,l (m), for its e(w) and the records")
     r.add_argument("--policy", default=None, help="nav-flat (the bundled policy, the default) or an ONNX file")
-    r.add_argument("--gait", default=None, metavar="goto",
-                   help="drive the trials with goto, the hand-written closed-loop controller, instead of a policy")
+    r.add_argument("--gait", default=None, metavar="goto|GAIT",
+                   help="drive the trials with goto, the hand-written closed-loop controller, or with a scripted "
+                        "gait (excite: the identification run of tumblebot calibrate), instead of a policy")
     r.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="lab-frame goal X,Y (default 0,0)")
     r.add_argument("--heading", type=float, default=0.0, help="lab-frame heading (rad) of the task frame's +x")
     r.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")
@@ -460,7 +567,8 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
                                     "and Debian's avr-gcc and simavr (./dev.sh test installs them).")
     t.add_argument("--out", type=Path, required=True, help="trial-set folder")
     t.add_argument("--design", default=XI3_ROBOT_TEXT, help="robot design (default: the ξ = 3 robot)")
-    t.add_argument("--policy", default="nav-flat", help="nav-flat or an ONNX file")
+    t.add_argument("--policy", default="nav-flat",
+                   help="nav-flat, an ONNX file, or excite (the identification run of tumblebot bench excite)")
     t.add_argument("--setpoint", type=_xy, default=(0.4, -0.3), help="lab-frame goal X,Y (default 0.4,-0.3)")
     t.add_argument("--heading", type=float, default=0.5, help="task-frame heading, rad (default 0.5)")
     t.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")

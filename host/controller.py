@@ -309,7 +309,7 @@ class TrialRunner:
         latency = (state.last_sent - fresh.t) * 1e3
         state.latencies.append(latency)
         state.times.append((fresh.t, fresh.source_time, state.last_sent))
-        decision = {"step": state.decisions, "observation": [float(v) for v in obs],
+        decision = {"step": state.decisions, "t": state.last_sent, "observation": [float(v) for v in obs],
                     "command": list(self.command), "distance": self.distance(fresh), "latency_ms": latency}
         state.decisions += 1
         state.next_decision = state.start + state.decisions * self.config.period

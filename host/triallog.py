@@ -31,7 +31,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "source_time": {"type": "number", "description": "the source's own timestamp, s (absent if it has none)"},
         "seq": {"type": "integer", "description": "the source's frame counter (absent if it has none)"}}},
     "/decision": {"type": "object", "title": "tumblebot.Decision", "properties": {
-        "step": {"type": "integer"}, "observation": {"type": "array", "items": {"type": "number"}},
+        "step": {"type": "integer"},
+        "t": {"type": "number", "description": "host monotonic time the command left, s (the clock of /pose t)"},
+        "observation": {"type": "array", "items": {"type": "number"}},
         "command": {"type": "array", "items": {"type": "integer"}}, "distance": {"type": "number"},
         "latency_ms": {"type": "number"}}},
     "/command": {"type": "object", "title": "tumblebot.Command", "properties": {

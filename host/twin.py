@@ -119,6 +119,10 @@ class _World:
         self.pose_every = max(1, round(env.physics_hz / pose_rate))
         self.placed = False
         self.command = (0.0, 0.0)  #: the legs' commands now (right, left)
+        self.pulses = (0.0, 0.0)  #: what the servo pulses on the pins command now
+        #: (substep, command) not yet in force: a hidden world's command latency
+        self.pending: list[tuple[int, tuple[float, float]]] = []
+        self.latency_rng = np.random.default_rng(0x7A1E)
         self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
         # seq never goes back, across restarts of the world too (a signed stream requires it):
         # milliseconds since the epoch at start, then one per frame (at most 1000 frames a second)
@@ -136,11 +140,19 @@ class _World:
         reply = _control(self.env, data, seed, self.uno, self.publish)
         if reply.pop("placed", False):
             self.placed, self.wall0, self.substeps, self.sim_time = True, time.monotonic(), 0, 0.0
-            self.command = (0.0, 0.0)
+            self.command = self.pulses = (0.0, 0.0)
+            self.pending.clear()
             print(f"placed: {data.decode(errors='replace')}", file=sys.stderr, flush=True)
         quit_now = bool(reply.pop("quit", False))
         ctl.sendto(json.dumps(reply).encode(), source)
         return quit_now
+
+    def _legs(self, command: tuple[float, float]) -> None:
+        if command != self.command:  # the world's log: when the legs changed, to replay a trial exactly
+            self.command = command
+            print(f"legs {command[0]!r} {command[1]!r} from substep {self.substeps}", file=sys.stderr,
+                  flush=True)  # every digit: a replay that rounds the speeds drifts apart (chaos)
+        self.env.set_leg_commands(*command)
 
     def _track_emulator(self) -> None:
         """How far the emulated firmware's clock drifts behind real time (simavr is paced
@@ -161,14 +173,15 @@ class _World:
             return False
         self._track_emulator()
         command = self.hardware.commands(self.uno.widths())
-        if command != self.command:  # the world's log: when the legs changed, to replay a trial exactly
-            self.command = command
-            print(f"legs {command[0]!r} {command[1]!r} from substep {self.substeps}", file=sys.stderr,
-                  flush=True)  # every digit: a replay that rounds the speeds drifts apart (chaos)
-        self.env.set_leg_commands(*command)
+        if command != self.pulses:  # a hidden world's latency delays it (none by default)
+            self.pulses = command
+            lo, hi = self.env.randomization.latency
+            self.pending.append((self.substeps + round(self.latency_rng.uniform(lo, hi) / self.dt), command))
         behind = due - self.substeps
         self.late += max(0, min(behind, 24) - LATE_SUBSTEPS)
         for _ in range(min(behind, 24)):
+            while self.pending and self.pending[0][0] <= self.substeps:
+                self._legs(self.pending.pop(0)[1])
             self.env.advance(1)
             self.substeps += 1
             self.sim_time += self.dt
@@ -364,7 +377,8 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
         cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--points", str(points),
                "--per-point", str(per_point), "--radius", str(radius), "--setpoint", f"{setpoint[0]},{setpoint[1]}",
                "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
-               "--policy", policy, *stack.host_args(), *(extra or [])]
+               *(["--gait", policy] if policy == "excite" else ["--policy", policy]), *stack.host_args(),
+               *(extra or [])]
         code = subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
         stack.close()  # the world writes how far it fell behind real time as it stops
         logs = {name: (Path(tmp) / name).read_text() for name in ("world.log", "agent.log")

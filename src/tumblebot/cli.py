@@ -906,7 +906,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_optimize_command(sub)
     _add_report_command(sub)
     add_build_command(sub, _positive_float, _check_writable)
-    add_host_commands(sub, _positive_int)
+    add_host_commands(sub, _positive_int, _check_writable)
     add_physics_command(sub)
     _add_demo_command(sub)
     return parser

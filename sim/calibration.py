@@ -1,0 +1,647 @@
+"""Calibration: the physics profile under which simulated motion matches a robot's logged motion.
+
+A logged trial gives the simulator what it needs to run the same trial again: the robot's
+design, where it stood and which way it faced when the first command left, and every leg
+command with the moment it left (a :class:`Trace`). :func:`replay` runs a trace under a
+candidate profile, open loop, and records the body's planar pose (a :class:`Track`), the
+same kind of record the motion capture made. Both are cut into the trace's steps (one
+command each) and summarised by :func:`statistics`: per kind of command (drive, spin,
+one leg, stop) the mean distance and turn of a step, how quickly a drive step gets under
+way, and how much drive steps differ from each other.
+
+:func:`calibrate` fits the profile by simulation-based inference with a quadratic
+emulator (a response surface), in two rounds:
+
+1. Simulate the whole set of traces at points of a scrambled Sobol design over the prior
+   box of every fitted parameter (free speed and stall torque on a log scale), one
+   independent seed per point; fit each statistic by a quadratic in the parameters
+   (least squares); weigh a dense quasi-random sample of the box by the Gaussian
+   synthetic likelihood of the logged statistics, whose variance is measured from
+   replicate simulations (how much the same trials differ from run to run) plus the
+   emulator's own error.
+2. Zoom the box to where that posterior lies and do it again there.
+
+The posterior's 5 %, 50 % and 95 % quantiles give each parameter its value and 90 %
+interval. Identifiability is measured, not assumed: the emulator of round 1 says how far
+moving a parameter across its prior box moves each statistic, in units of the statistic's
+run-to-run noise (its *effect*), and a parameter counts as identified only when that
+effect is at least :data:`MIN_EFFECT` and its interval lies within ±25 % of its value.
+Any other parameter keeps the prior's value, and says so.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import multiprocessing as mp
+import signal
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.physics import MAX_LATENCY, PhysicsProfile
+
+RECORD_HZ = 60  #: how often a replay records the body's pose (the mocap runs at about 100 Hz)
+MIN_STEPS = 6  #: logged steps a kind of command needs before its statistics count
+MIN_EFFECT = 3.0  #: a parameter whose range moves no statistic this many noise SDs is not identifiable
+MAX_REL_HALF_WIDTH = 0.25  #: an identified parameter's 90 % interval lies within ±25 % of its value
+STILL = 0.005  #: m: a step that moves less than this never "gets under way"
+
+CLASSES = ("drive", "spin", "pivot", "stop")  #: both legs one way; opposite ways; one leg; none
+
+
+#: a full quadratic in the fitted parameters has 1 + k + k(k+1)/2 coefficients; a few more points than that
+MIN_DESIGN_POINTS = 1 + 6 + 21 + 4
+
+
+class CalibrationError(SimError):
+    """Logs or settings a calibration cannot use (one line)."""
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass(frozen=True)
+class Trace:
+    """What a logged trial gives the simulator: its design, the pose at the first command
+    (``x``, ``y`` in m and the heading of the legs' axis in rad), and every command
+    ``(t, right, left)`` with ``t`` in s after the first one; the trial ends ``duration``
+    s after the first command."""
+
+    name: str
+    design: tuple[float, float, float, float]
+    start: tuple[float, float, float]
+    commands: tuple[tuple[float, int, int], ...]
+    duration: float
+
+    def __post_init__(self) -> None:
+        if not self.commands:
+            raise CalibrationError(f"{self.name}: no leg commands")
+        times = [c[0] for c in self.commands]
+        if times[0] < 0 or any(b < a for a, b in itertools.pairwise(times)) \
+                or not self.duration > times[-1]:
+            raise CalibrationError(f"{self.name}: command times must start at 0, increase and end before the trial")
+        if any(c[1] not in (-1, 0, 1) or c[2] not in (-1, 0, 1) for c in self.commands):
+            raise CalibrationError(f"{self.name}: leg commands must be -1, 0 or 1")
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps([self.design, self.start, self.commands, self.duration]).encode()
+                              ).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Track:
+    """The body's planar pose over a trial: times (s after the first command), x, y (m)
+    and the heading of the legs' axis (rad)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+
+
+def axis_heading(quaternion: Sequence[float]) -> float:
+    """The lab-frame heading of the body's x axis (the legs' shared axis), rad: what a
+    tumble about that axis leaves unchanged."""
+    x, y, z, w = quaternion
+    return math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+
+
+def command_class(right: int, left: int) -> str:
+    if right == 0 and left == 0:
+        return "stop"
+    if right == left:
+        return "drive"
+    if right == -left:
+        return "spin"
+    return "pivot"
+
+
+# ----------------------------------------------------------------------------- replay
+def replay(env: Any, trace: Trace, seed: int) -> Track:
+    """Run ``trace`` open loop in ``env`` (a :class:`~tumblebot.sim.env.TumblerEnv` built
+    for the candidate profile): reset at the trace's start (its seed draws the legs'
+    angles, masses, friction and motor noise), then each command from its time plus a
+    latency drawn from the profile's range."""
+    from tumblebot.sim.design import Design
+
+    env.reset(seed=seed, options={"design": Design(*trace.design), "start_xy": trace.start[:2],
+                                  "start_yaw": trace.start[2]})
+    hz = env.physics_hz
+    lo, hi = env.randomization.latency
+    rng = np.random.default_rng([seed, 0x1A7E])
+    events = sorted((round((t + rng.uniform(lo, hi)) * hz), k, r, lft) for k, (t, r, lft) in enumerate(trace.commands))
+    end = round(trace.duration * hz)
+    every = max(1, hz // RECORD_HZ)
+    rows: list[tuple[float, float, float, float]] = []
+    i, e = 0, 0
+    while True:
+        while e < len(events) and events[e][0] <= i:
+            env.set_leg_commands(float(events[e][2]), float(events[e][3]))
+            e += 1
+        if i % every == 0 or i == end:
+            position, quaternion = env.base_pose()
+            rows.append((i / hz, position[0], position[1], axis_heading(quaternion)))
+        if i >= end:
+            break
+        next_record = (i // every + 1) * every
+        nxt = min(next_record, end, events[e][0] if e < len(events) else end)
+        env.advance(max(1, nxt - i))
+        i = max(i + 1, nxt)
+    a = np.array(rows)
+    return Track(a[:, 0], a[:, 1], a[:, 2], a[:, 3])
+
+
+def step_features(trace: Trace, track: Track) -> np.ndarray:
+    """One row per step: class index (into :data:`CLASSES`), distance (m), turn (rad, its
+    size) and the time (s) the step took to cover half its greatest distance from where
+    it began (the step's length if it never moved :data:`STILL`)."""
+    bounds = [c[0] for c in trace.commands] + [trace.duration]
+    rows = []
+    for k, (_, right, left) in enumerate(trace.commands):
+        i0 = max(0, int(np.searchsorted(track.t, bounds[k], side="right")) - 1)
+        i1 = max(i0, int(np.searchsorted(track.t, bounds[k + 1], side="right")) - 1)
+        dx, dy = track.x[i1] - track.x[i0], track.y[i1] - track.y[i0]
+        turn = abs(math.remainder(float(track.heading[i1] - track.heading[i0]), 2 * math.pi))
+        away = np.hypot(track.x[i0:i1 + 1] - track.x[i0], track.y[i0:i1 + 1] - track.y[i0])
+        length = bounds[k + 1] - bounds[k]
+        if away.max() < STILL:
+            t50 = length
+        else:
+            t50 = float(track.t[i0 + int(np.argmax(away >= 0.5 * away.max()))] - track.t[i0])
+        rows.append((CLASSES.index(command_class(right, left)), math.hypot(dx, dy), turn, min(t50, length)))
+    return np.array(rows, dtype=float)
+
+
+def statistics(features: Sequence[np.ndarray]) -> dict[str, float]:
+    """The summary the fit matches: per kind of command with :data:`MIN_STEPS` steps or
+    more, the mean distance and turn of a step; for drives also their spread and how soon
+    they get under way (mean time to half distance); for one-leg steps that time too."""
+    f = np.vstack(features)
+    out: dict[str, float] = {}
+    for c, name in enumerate(CLASSES):
+        rows = f[f[:, 0] == c]
+        if len(rows) < MIN_STEPS:
+            continue
+        out[f"{name} distance"] = float(rows[:, 1].mean())
+        out[f"{name} turn"] = float(rows[:, 2].mean())
+        if name == "drive":
+            out["drive distance sd"] = float(rows[:, 1].std())
+        if name in ("drive", "pivot"):
+            out[f"{name} time to half"] = float(rows[:, 3].mean())
+    return out
+
+
+# ----------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class Parameter:
+    """A fitted parameter: its name (a profile key), unit, prior box and scale."""
+
+    name: str
+    unit: str
+    log: bool
+
+    def value(self, profile: PhysicsProfile) -> float:
+        if self.name == "latency":
+            return 0.5 * (profile.latency[0] + profile.latency[1])
+        return float(getattr(profile, self.name))
+
+    def box(self, prior: PhysicsProfile) -> tuple[float, float]:
+        v = self.value(prior)
+        if self.name == "free_speed":
+            return v / 2.0, v * 2.0
+        if self.name == "stall_torque":
+            from tumblebot.sim import constants as C
+
+            return v / 3.0, min(v * 3.0, C.MAX_STALL_TORQUE)
+        if self.name == "friction":
+            return min(0.3, v / 2.0), max(1.5, v * 1.5)
+        if self.name == "hold_torque":
+            return 0.0, max(1.0, 3.0 * v)
+        if self.name == "latency":
+            return 0.0, max(0.2, 2.0 * v)
+        if self.name == "motor_speed_sigma":
+            return 0.0, max(2.0, 2.0 * v)
+        raise CalibrationError(f"no prior box for {self.name}")
+
+    def apply(self, profile: PhysicsProfile, value: float) -> PhysicsProfile:
+        if self.name == "latency":  # the mean moves; the spread stays the prior's where it can
+            lo0, hi0 = profile.latency
+            lo = max(0.0, value - 0.5 * (hi0 - lo0))
+            return replace(profile, latency=(lo, min(MAX_LATENCY, 2.0 * value - lo)))
+        return replace(profile, **{self.name: float(value)})  # type: ignore[arg-type]
+
+    def to_unit(self, value: np.ndarray, box: tuple[float, float]) -> np.ndarray:
+        lo, hi = box
+        if self.log:
+            return np.asarray((np.log(value) - math.log(lo)) / (math.log(hi) - math.log(lo)), dtype=float)
+        return np.asarray((value - lo) / (hi - lo), dtype=float)
+
+    def from_unit(self, u: np.ndarray, box: tuple[float, float]) -> np.ndarray:
+        lo, hi = box
+        if self.log:
+            return np.asarray(np.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))), dtype=float)
+        return np.asarray(lo + u * (hi - lo), dtype=float)
+
+
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("free_speed", "rad/s", True),
+    Parameter("stall_torque", "N·m", True),
+    Parameter("friction", "", False),
+    Parameter("hold_torque", "N·m", False),
+    Parameter("latency", "s (mean)", False),
+    Parameter("motor_speed_sigma", "rad/s", False),
+)
+NOT_FITTED = ("motor_model", "friction_rel_sigma")  #: kept from the prior: the logs hardly show them
+
+
+def profile_at(prior: PhysicsProfile, values: dict[str, float], name: str | None = None) -> PhysicsProfile:
+    out = prior
+    for p in PARAMETERS:
+        if p.name in values:
+            out = p.apply(out, values[p.name])
+    return replace(out, name=name or out.name)
+
+
+# ----------------------------------------------------------------------------- simulating
+_traces: tuple[Trace, ...] = ()  #: in a pool process
+
+
+def _init_worker(traces: tuple[Trace, ...]) -> None:
+    global _traces
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    _traces = traces
+
+
+def simulate_set(traces: Sequence[Trace], profile: PhysicsProfile, seed: int) -> list[np.ndarray]:
+    """Every trace replayed once under ``profile``: its step features, trace by trace."""
+    from tumblebot.sim.env import TumblerEnv
+    from tumblebot.sim.randomization import Randomization
+
+    env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
+                     **profile.env_kwargs())
+    try:
+        return [step_features(trace, replay(env, trace, int(np.random.SeedSequence([seed, j]).generate_state(1)[0])))
+                for j, trace in enumerate(traces)]
+    finally:
+        env.close()
+
+
+def _run_job(job: tuple[dict[str, Any], int]) -> list[list[list[float]]]:
+    values, seed = job
+    return [f.tolist() for f in simulate_set(_traces, PhysicsProfile.from_json(values), seed)]
+
+
+class Simulator:
+    """Simulates the trace set under many profiles, in worker processes, remembering every
+    result in a cache file (one JSON line each, appended as it comes), so an interrupted
+    calibration resumes where it stopped."""
+
+    def __init__(self, traces: Sequence[Trace], workers: int = 1, cache: Path | None = None,
+                 on_done: Callable[[int], object] | None = None) -> None:
+        self.traces = tuple(traces)
+        self.key = hashlib.sha256("".join(t.digest() for t in self.traces).encode()).hexdigest()[:16]
+        self.cache_path = cache
+        self.on_done = on_done
+        self.done: dict[str, list[np.ndarray]] = {}
+        self.simulated = 0  #: sets simulated by this process (not read from the cache)
+        if cache is not None and cache.is_file():
+            for line in cache.read_text().splitlines():
+                try:
+                    item = json.loads(line)
+                    self.done[item["key"]] = [np.array(f, dtype=float) for f in item["features"]]
+                except (json.JSONDecodeError, KeyError, TypeError):
+                    continue  # a line cut short by a kill: simulated again
+        self._pool: Any = None
+        self.workers = workers
+
+    def _key(self, profile: PhysicsProfile, seed: int) -> str:
+        return hashlib.sha256(f"{self.key} {profile.digest()} {seed}".encode()).hexdigest()[:24]
+
+    def run(self, jobs: Sequence[tuple[PhysicsProfile, int]]) -> list[list[np.ndarray]]:
+        """Step features of each ``(profile, seed)``: from the cache, or simulated."""
+        keys = [self._key(p, s) for p, s in jobs]
+        todo = [(i, k) for i, k in enumerate(keys) if k not in self.done]
+        for _ in range(len(jobs) - len(todo)):
+            if self.on_done is not None:
+                self.on_done(1)
+        if todo:
+            payload = [(jobs[i][0].to_json(), jobs[i][1]) for i, _ in todo]
+            results: Iterator[tuple[int, list[list[list[float]]]]]
+            if self.workers > 1:
+                if self._pool is None:
+                    self._pool = mp.get_context("forkserver").Pool(self.workers, initializer=_init_worker,
+                                                                    initargs=(self.traces,))
+                results = self._pool.imap_unordered(_indexed_job, list(enumerate(payload)))
+            else:
+                results = ((n, [f.tolist() for f in simulate_set(self.traces, *jobs[i])])
+                           for n, (i, _) in enumerate(todo))
+            cache = self.cache_path.open("a") if self.cache_path is not None else None
+            try:
+                for n, features in results:
+                    key = todo[n][1]
+                    self.done[key] = [np.array(f, dtype=float) for f in features]
+                    self.simulated += 1
+                    if cache is not None:
+                        cache.write(json.dumps({"key": key, "features": features}, separators=(",", ":")) + "\n")
+                        cache.flush()
+                    if self.on_done is not None:
+                        self.on_done(1)
+            finally:
+                if cache is not None:
+                    cache.close()
+        return [self.done[k] for k in keys]
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
+
+
+def _indexed_job(item: tuple[int, tuple[dict[str, Any], int]]) -> tuple[int, list[list[list[float]]]]:
+    n, job = item
+    return n, _run_job(job)
+
+
+# ----------------------------------------------------------------------------- the fit
+@dataclass(frozen=True)
+class Settings:
+    """How much simulation a calibration spends (the defaults: about 4 minutes for 15
+    trials on two cores)."""
+
+    design_points: int = 128  #: Sobol points of round 1 (round 2 has half as many)
+    replicates: int = 8  #: replicate simulations that measure run-to-run noise
+    posterior_samples: int = 1 << 15
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.design_points < MIN_DESIGN_POINTS or self.replicates < 3:
+            raise CalibrationError(f"a calibration needs at least {MIN_DESIGN_POINTS} design points and 3 replicates")
+
+    def rounds(self) -> tuple[int, int]:
+        return self.design_points, max(MIN_DESIGN_POINTS, self.design_points // 2)
+
+
+def _quadratic(u: np.ndarray) -> np.ndarray:
+    """The features of a full quadratic in ``u`` (rows are points in the unit box)."""
+    z = u - 0.5
+    cols = [np.ones(len(z))]
+    k = z.shape[1]
+    cols += [z[:, j] for j in range(k)]
+    cols += [z[:, i] * z[:, j] for i in range(k) for j in range(i, k)]
+    return np.column_stack(cols)
+
+
+@dataclass
+class Emulator:
+    """Each statistic as a quadratic in the parameters (on the unit box), fitted by least
+    squares, with its residual variance."""
+
+    coef: np.ndarray  #: (features, statistics)
+    residual_var: np.ndarray  #: per statistic
+    points: int
+
+    @classmethod
+    def fit(cls, u: np.ndarray, y: np.ndarray) -> Emulator:
+        from scipy.linalg import lstsq
+
+        x = _quadratic(u)
+        coef, _, _, _ = lstsq(x, y)
+        resid = y - x @ coef
+        dof = max(1, len(u) - x.shape[1])
+        return cls(np.asarray(coef), (resid ** 2).sum(axis=0) / dof, len(u))
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        return np.asarray(_quadratic(u) @ self.coef)
+
+
+def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs: Sequence[float]) -> list[float]:
+    order = np.argsort(values)
+    cdf = np.cumsum(weights[order])
+    cdf /= cdf[-1]
+    return [float(values[order][min(len(values) - 1, int(np.searchsorted(cdf, q)))]) for q in qs]
+
+
+@dataclass
+class Calibration:
+    """A calibration's outcome: the fitted profile, each parameter's estimate, and the fit."""
+
+    profile: PhysicsProfile
+    prior: PhysicsProfile
+    parameters: dict[str, dict[str, Any]]
+    fit: dict[str, Any]
+    features: dict[str, list[np.ndarray]] = field(default_factory=dict)  #: logged, prior, fitted (for the plot)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"parameters": self.parameters, "fit": self.fit, "profile": self.profile.record(),
+                "prior": self.prior.record()}
+
+
+Box = list[tuple[float, float]]
+
+
+class _Fit:
+    """The two rounds of :func:`calibrate` over one set of logged statistics."""
+
+    def __init__(self, observed: dict[str, float], prior: PhysicsProfile, simulator: Simulator,
+                 settings: Settings) -> None:
+        self.names = list(observed)
+        self.s_obs = np.array([observed[n] for n in self.names])
+        self.prior, self.simulator, self.settings = prior, simulator, settings
+        self.params = PARAMETERS
+        self.box1: Box = [p.box(prior) for p in self.params]
+
+    def stats_of(self, features: list[np.ndarray]) -> np.ndarray:
+        s = statistics(features)
+        return np.array([s.get(n, np.nan) for n in self.names])
+
+    def profile_u(self, u: np.ndarray, box: Box) -> PhysicsProfile:
+        return profile_at(self.prior, {p.name: float(p.from_unit(np.array(u[j]), box[j]))
+                                       for j, p in enumerate(self.params)})
+
+    def replicate(self, profile: PhysicsProfile, base: int) -> tuple[np.ndarray, list[list[np.ndarray]]]:
+        """Statistics of ``replicates`` runs of the whole set under ``profile`` (seeds from ``base``)."""
+        runs = self.simulator.run([(profile, base + r) for r in range(self.settings.replicates)])
+        return np.array([self.stats_of(f) for f in runs]), runs
+
+    def design(self, n: int, box: Box, seed: int, base: int) -> tuple[np.ndarray, np.ndarray]:
+        """A scrambled Sobol design of ``n`` points in ``box`` (unit coordinates) and their statistics."""
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(len(self.params), scramble=True, seed=seed).random(n)
+        runs = self.simulator.run([(self.profile_u(row, box), base + i) for i, row in enumerate(u)])
+        y = np.array([self.stats_of(f) for f in runs])
+        keep = np.all(np.isfinite(y), axis=1)
+        return u[keep], y[keep]
+
+    def posterior(self, emulator: Emulator, noise_var: np.ndarray, box: Box, seed: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Quasi-random points of ``box`` (parameter values) and their normalised weights under
+        the synthetic likelihood: run-to-run noise, the emulator's lack of fit beyond that
+        noise, and the error of its estimated mean."""
+        from scipy.stats import qmc
+
+        u = qmc.Sobol(len(self.params), scramble=True, seed=seed).random(self.settings.posterior_samples)
+        res = emulator.residual_var
+        var = noise_var + np.maximum(res - noise_var, 0.0) + res * _quadratic(u[:1]).shape[1] / emulator.points
+        loglik = -0.5 * (((self.s_obs - emulator.predict(u)) ** 2) / var).sum(axis=1)
+        w = np.exp(loglik - loglik.max())
+        values = np.column_stack([p.from_unit(u[:, j], box[j]) for j, p in enumerate(self.params)])
+        return values, w / w.sum()
+
+    def effects(self, emulator: Emulator, noise_var: np.ndarray, centre: np.ndarray) -> dict[str, tuple[float, str]]:
+        """What each parameter does to the statistics: the most any moves (in noise SDs) as
+        the parameter crosses its prior box, the others at ``centre`` (unit coordinates)."""
+        out = {}
+        for j, p in enumerate(self.params):
+            ends = np.repeat(centre[None, :], 2, axis=0)
+            ends[:, j] = (0.0, 1.0)
+            delta = np.abs(np.diff(emulator.predict(ends), axis=0)[0]) / np.sqrt(noise_var)
+            out[p.name] = (float(delta.max()), self.names[int(delta.argmax())])
+        return out
+
+    def zoom(self, values: np.ndarray, w: np.ndarray) -> Box:
+        """The part of the prior box where a posterior lies, padded."""
+        box = []
+        for j, p in enumerate(self.params):
+            lo, hi = _weighted_quantiles(values[:, j], w, [0.0005, 0.9995])
+            ulo, uhi = (float(v) for v in p.to_unit(np.array([lo, hi]), self.box1[j]))
+            pad = 0.25 * (uhi - ulo) + 0.02
+            ulo, uhi = max(0.0, ulo - pad), min(1.0, uhi + pad)
+            box.append((float(p.from_unit(np.array(ulo), self.box1[j])),
+                        float(p.from_unit(np.array(uhi), self.box1[j]))))
+        return box
+
+    def inside(self, u1: np.ndarray, box2: Box) -> tuple[np.ndarray, np.ndarray]:
+        """Round 1's points that lie in ``box2``: their mask, and their unit coordinates there."""
+        values = np.column_stack([p.from_unit(u1[:, j], self.box1[j]) for j, p in enumerate(self.params)])
+        mask = np.all((values >= [b[0] for b in box2]) & (values <= [b[1] for b in box2]), axis=1)
+        u = np.column_stack([p.to_unit(values[mask, j], box2[j]) for j, p in enumerate(self.params)])
+        return mask, u.reshape(-1, len(self.params))
+
+    def median(self, values: np.ndarray, w: np.ndarray) -> dict[str, float]:
+        return {p.name: _weighted_quantiles(values[:, j], w, [0.5])[0] for j, p in enumerate(self.params)}
+
+
+def _estimate(p: Parameter, prior: PhysicsProfile, quantiles: list[float], effect: tuple[float, str],
+              box: tuple[float, float]) -> dict[str, Any]:
+    """One parameter's verdict: identified (value and 90 % interval), or why not, and then
+    what the profile takes (the prior's value, unless the logs rule it out)."""
+    q05, q50, q95 = quantiles
+    size, where = effect
+    narrow = q50 > 0 and q05 >= (1 - MAX_REL_HALF_WIDTH) * q50 and q95 <= (1 + MAX_REL_HALF_WIDTH) * q50
+    identifiable = size >= MIN_EFFECT and narrow
+    kept = p.value(prior)
+    value, lo, hi, keep = kept, box[0], box[1], True
+    if identifiable:
+        value, lo, hi, keep = q50, q05, q95, False
+        why = f"moves {where} by {size:.1f} noise SDs across its range"
+    elif size < MIN_EFFECT:
+        why = (f"barely shows in these logs: across its whole prior range it moves no statistic more than "
+               f"{size:.1f} noise SDs (most: {where}); the prior's value is kept")
+    elif q05 <= kept <= q95:
+        lo, hi = q05, q95
+        why = (f"shows in these logs ({where}, {size:.1f} noise SDs) but they leave it uncertain: 90 % of the "
+               f"posterior lies in {q05:.3g}..{q95:.3g}, wider than ±{MAX_REL_HALF_WIDTH:.0%}; the prior's "
+               f"{kept:.3g} agrees with the logs and is kept")
+    else:  # keeping the prior would write a profile the logs rule out
+        value, lo, hi, keep = q50, q05, q95, False
+        why = (f"the logs rule out the prior's {kept:.3g} ({where}, {size:.1f} noise SDs) but leave it uncertain "
+               f"in {q05:.3g}..{q95:.3g}, wider than ±{MAX_REL_HALF_WIDTH:.0%}: the profile takes the posterior's "
+               f"median, which is not a confident value")
+    return {"value": value, "low": lo, "high": hi, "identifiable": identifiable, "unit": p.unit, "prior": kept,
+            "kept_prior": keep, "posterior": [q05, q50, q95], "effect": size, "most_visible_in": where, "why": why}
+
+
+def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsProfile, name: str,
+              simulator: Simulator, settings: Settings | None = None,
+              say: Callable[[str], None] = lambda line: None) -> Calibration:
+    """Fit ``prior``'s :data:`PARAMETERS` to the logged ``tracks`` of ``traces`` (see the
+    module docs). ``simulator`` runs (and caches) the simulations."""
+    settings = settings or Settings()
+    logged = [step_features(tr, tk) for tr, tk in zip(traces, tracks, strict=True)]
+    observed = statistics(logged)
+    if not observed:
+        raise CalibrationError(f"the logs have fewer than {MIN_STEPS} steps of every kind of command: nothing to fit "
+                               "(run the identification trials, tumblebot bench excite)")
+    fit = _Fit(observed, prior, simulator, settings)
+    n1, n2 = settings.rounds()
+    say(f"round 1 of 2: the prior box, {n1} simulated trial sets and {settings.replicates} replicates")
+    prior_stats, prior_runs = fit.replicate(prior, 10_000_000)
+    noise1 = np.var(prior_stats, axis=0, ddof=1) + 1e-12
+    u1, y1 = fit.design(n1, fit.box1, settings.seed, 0)
+    emu1 = Emulator.fit(u1, y1)
+    values1, w1 = fit.posterior(emu1, noise1, fit.box1, settings.seed + 1)
+    centre = fit.median(values1, w1)
+    centre_u = np.array([float(p.to_unit(np.array(centre[p.name]), fit.box1[j])) for j, p in enumerate(fit.params)])
+    effects = fit.effects(emu1, noise1, centre_u)
+
+    box2 = fit.zoom(values1, w1)
+    say(f"round 2 of 2: the posterior's box, {n2} simulated trial sets and {settings.replicates} replicates")
+    centre_stats, _ = fit.replicate(profile_at(prior, centre), 20_000_000)
+    noise2 = np.var(centre_stats, axis=0, ddof=1) + 1e-12
+    u2, y2 = fit.design(n2, box2, settings.seed + 2, 30_000_000)
+    mask, u_old = fit.inside(u1, box2)  # round 1's points inside the new box help too
+    emu2 = Emulator.fit(np.vstack([u2, u_old]), np.vstack([y2, y1[mask]]))
+    values2, w2 = fit.posterior(emu2, noise2, box2, settings.seed + 3)
+
+    parameters = {p.name: _estimate(p, prior, _weighted_quantiles(values2[:, j], w2, [0.05, 0.5, 0.95]),
+                                    effects[p.name], fit.box1[j]) for j, p in enumerate(fit.params)}
+    profile = profile_at(prior, {k: v["value"] for k, v in parameters.items() if not v["kept_prior"]}, name)
+    say("checking the fit: replicate simulations under the prior and the fitted profile")
+    fitted_stats, fitted_runs = fit.replicate(profile, 40_000_000)
+
+    def misfit(stats: np.ndarray, noise: np.ndarray) -> float:
+        return float((((stats.mean(axis=0) - fit.s_obs) ** 2) / noise).mean())
+
+    summary = {"trials": len(traces), "steps": int(sum(len(f) for f in logged)),
+               "simulated_sets": simulator.simulated, "effective_samples": float(1.0 / (w2 ** 2).sum()),
+               "not_fitted": {k: getattr(prior, k) for k in NOT_FITTED},
+               "statistics": {n: {"logged": float(fit.s_obs[i]), "prior": float(prior_stats[:, i].mean()),
+                                  "fitted": float(fitted_stats[:, i].mean()), "noise_sd": float(math.sqrt(noise2[i]))}
+                              for i, n in enumerate(fit.names)},
+               "misfit_prior": misfit(prior_stats, noise1), "misfit_fitted": misfit(fitted_stats, noise2)}
+    features = {"logged": logged, "prior": [f for run in prior_runs for f in run],
+                "fitted": [f for run in fitted_runs for f in run]}
+    return Calibration(profile, prior, parameters, summary, features)
+
+
+# ----------------------------------------------------------------------------- the picture
+def plot(cal: Calibration, path: Path) -> None:
+    """Logged against simulated per-step motion, under the prior and the fitted profile:
+    per kind of command, the distribution of step distances and turns."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    logged = np.vstack(cal.features["logged"])
+    kinds = [c for c in range(len(CLASSES)) if (logged[:, 0] == c).sum() >= MIN_STEPS]
+    fig, axes = plt.subplots(2, len(kinds), figsize=(3.2 * len(kinds), 5.6), squeeze=False)
+    series = (("logged", "black", "logged"), ("prior", "tab:red", f"prior ({cal.prior.name})"),
+              ("fitted", "tab:blue", f"fitted ({cal.profile.name})"))
+    for col, c in enumerate(kinds):
+        for row, (feature, label) in enumerate(((1, "distance per step (m)"), (2, "turn per step (rad)"))):
+            ax = axes[row][col]
+            data = {key: np.vstack(cal.features[key]) for key, _, _ in series}
+            values = [d[d[:, 0] == c, feature] for d in data.values()]
+            hi = max(float(v.max()) for v in values if len(v)) or 1.0
+            bins = np.linspace(0.0, hi * 1.05, 16)
+            for (key, colour, text), v in zip(series, values, strict=True):
+                ax.hist(v, bins=bins, density=True, histtype="step" if key != "logged" else "stepfilled",
+                        color=colour, alpha=0.35 if key == "logged" else 1.0, lw=1.6, label=text)
+            ax.set_xlabel(label, fontsize=8)
+            if row == 0:
+                ax.set_title(f"{CLASSES[c]} steps ({int((logged[:, 0] == c).sum())} logged)", fontsize=9)
+            ax.tick_params(labelsize=7)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f"calibration: {cal.fit['trials']} trials; misfit (mean squared, in noise SDs) "
+                 f"{cal.fit['misfit_prior']:.1f} under the prior, {cal.fit['misfit_fitted']:.1f} fitted", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

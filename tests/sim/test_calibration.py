@@ -1,0 +1,103 @@
+"""The calibration's pieces: step features, replay, and a fit that recovers a hidden world."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tumblebot.sim import calibration as cal
+from tumblebot.sim.design import THESIS_ROBOTS
+from tumblebot.sim.frames import yaw_quaternion
+from tumblebot.sim.gaits import EXCITATION
+from tumblebot.sim.physics import THESIS, PhysicsProfile
+
+XI3 = THESIS_ROBOTS["3"].as_tuple()
+EXCITE = tuple((float(k), a - 1, b - 1) for k, (a, b) in enumerate(EXCITATION))
+
+
+def test_axis_heading_is_the_yaw_and_ignores_a_tumble_about_the_axis() -> None:
+    for yaw in (-2.0, 0.0, 0.7, 3.0):
+        assert cal.axis_heading(list(yaw_quaternion(yaw))) == pytest.approx(yaw)
+        tumble = (math.sin(0.6), 0.0, 0.0, math.cos(0.6))  # about the body's x axis
+        q = yaw_quaternion(yaw)
+        # q ⊗ tumble (Hamilton product, x y z w)
+        x1, y1, z1, w1 = q
+        x2, y2, z2, w2 = tumble
+        qt = (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+              w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
+        assert cal.axis_heading(qt) == pytest.approx(yaw)
+
+
+def test_step_features_of_a_known_track() -> None:
+    trace = cal.Trace("t", XI3, (0.0, 0.0, 0.0), ((0.0, 1, 1), (1.0, 1, -1), (2.0, 0, 0)), 3.0)
+    t = np.linspace(0.0, 3.0, 301)
+    x = np.clip(t, 0.0, 1.0) * 0.2  # drives 0.2 m in the first second, evenly
+    heading = np.where(t < 1.0, 0.0, np.clip(t - 1.0, 0.0, 1.0) * 0.5)  # then turns 0.5 rad
+    f = cal.step_features(trace, cal.Track(t, x, np.zeros_like(t), heading))
+    assert [cal.CLASSES[int(c)] for c in f[:, 0]] == ["drive", "spin", "stop"]
+    assert f[0, 1] == pytest.approx(0.2) and f[0, 3] == pytest.approx(0.5, abs=0.02)
+    assert f[1, 2] == pytest.approx(0.5) and f[1, 1] == pytest.approx(0.0)
+    assert f[2, 3] == 1.0  # never got under way: the step's length
+
+
+def test_a_trace_with_bad_commands_is_refused() -> None:
+    with pytest.raises(cal.CalibrationError, match="-1, 0 or 1"):
+        cal.Trace("t", XI3, (0.0, 0.0, 0.0), ((0.0, 2, 1),), 1.0)
+    with pytest.raises(cal.CalibrationError, match="increase"):
+        cal.Trace("t", XI3, (0.0, 0.0, 0.0), ((0.0, 1, 1), (0.5, 1, 1)), 0.4)
+
+
+def test_replay_is_reproducible_and_feels_the_free_speed() -> None:
+    trace = cal.Trace("t", XI3, (0.5, 0.0, 1.0), EXCITE, 20.0)
+    slow, again = (cal.simulate_set([trace], THESIS, seed=3)[0] for _ in range(2))
+    assert np.array_equal(slow, again)
+    fast = cal.simulate_set([trace], PhysicsProfile.from_json({"free_speed": 5.5}), seed=3)[0]
+    drives = slow[:, 0] == cal.CLASSES.index("drive")
+    assert fast[drives, 1].mean() > 1.2 * slow[drives, 1].mean()
+
+
+def test_statistics_need_enough_steps_of_a_kind() -> None:
+    f = np.array([[0, 0.2, 0.0, 0.5]] * cal.MIN_STEPS + [[1, 0.1, 0.3, 0.5]] * (cal.MIN_STEPS - 1))
+    stats = cal.statistics([f])
+    assert "drive distance" in stats and not any(k.startswith("spin") for k in stats)
+
+
+def test_latency_moves_its_mean_and_keeps_the_spread() -> None:
+    p = next(p for p in cal.PARAMETERS if p.name == "latency")
+    moved = p.apply(THESIS, 0.1)
+    assert moved.latency == pytest.approx((0.08, 0.12)) and p.value(moved) == pytest.approx(0.1)
+    assert p.apply(THESIS, 0.005).latency == pytest.approx((0.0, 0.01))
+
+
+@pytest.mark.slow
+def test_a_fit_recovers_a_hidden_free_speed_and_keeps_what_it_cannot_see(tmp_path: Path) -> None:
+    """The fit, end to end in one process, on logs from a world faster than the prior."""
+    from tests.calibration_logs import write_set
+    from tumblebot.host.calibrate import load_trials
+
+    hidden = PhysicsProfile.from_json({"name": "hidden", "free_speed": 4.6, "friction": 0.7})
+    trials = load_trials([write_set(tmp_path / "set", hidden, trials=5)])
+    sim = cal.Simulator([t.trace for t in trials], workers=1, cache=tmp_path / "cache.jsonl")
+    result = cal.calibrate([t.trace for t in trials], [t.track for t in trials], THESIS, "fit", sim,
+                           cal.Settings(design_points=cal.MIN_DESIGN_POINTS, replicates=4))
+    speed = result.parameters["free_speed"]
+    assert speed["identifiable"], speed
+    assert speed["low"] <= 4.6 <= speed["high"] and abs(speed["value"] - 4.6) < 0.1 * 4.6
+    assert speed["high"] <= 1.25 * speed["value"] and speed["low"] >= 0.75 * speed["value"]
+    for name, p in result.parameters.items():
+        if not p["identifiable"]:
+            assert p["why"], name
+            if p["kept_prior"]:  # what the logs cannot see, or agree with, stays the prior's
+                assert p["value"] == p["prior"], name
+            else:  # the logs rule the prior out: the posterior's median, with its wide interval
+                assert p["low"] <= p["value"] <= p["high"] and not p["low"] <= p["prior"] <= p["high"], name
+    assert result.profile.free_speed == speed["value"]
+    assert result.fit["misfit_fitted"] < result.fit["misfit_prior"]
+    # everything simulated is in the cache: the same fit again simulates nothing
+    again = cal.Simulator([t.trace for t in trials], workers=1, cache=tmp_path / "cache.jsonl")
+    repeat = cal.calibrate([t.trace for t in trials], [t.track for t in trials], THESIS, "fit", again,
+                           cal.Settings(design_points=cal.MIN_DESIGN_POINTS, replicates=4))
+    assert again.simulated == 0 and repeat.profile == result.profile
