@@ -422,13 +422,15 @@ def twin_world_physics(folder: Path) -> PhysicsProfile | None:
 
 
 # ----------------------------------------------------------------------------- consistency
-def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any]:
+def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: PhysicsProfile | None = None
+                    ) -> dict[str, Any]:
     """Pure-simulation final errors from the trial set's own start points and headings.
 
     For each finished trial: the same start point and yaw, expressed in the task frame,
     with ``episodes_per_trial`` episode seeds (the trial's own first), through
     ``TumblerEnv.step`` and the set's controller (its ONNX policy, or goto) under the
-    twin's servo: what ``tumblebot evaluate`` does, from these starts. ``per_trial`` holds
+    twin's servo (or its hidden world, or ``physics`` if given: a calibrated profile's
+    prediction): what ``tumblebot evaluate`` does, from these starts. ``per_trial`` holds
     the final errors grouped by trial, in the index's order.
     """
     from tumblebot.host.trials import TrialPlan, load_index
@@ -441,7 +443,7 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16) -> dict[str, Any
     index = load_index(folder)
     actor = make_actor("goto", "goto", plan.task) if plan.policy == "goto" else make_actor("onnx", plan.policy,
                                                                                            plan.task)
-    physics = twin_world_physics(folder)
+    physics = physics or twin_world_physics(folder)
     if physics is not None:
         env = TumblerEnv(task=plan.task, design=Design(*plan.design),
                          randomization=physics.randomization(Randomization(design=False)), **physics.env_kwargs())

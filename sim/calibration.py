@@ -26,7 +26,10 @@ interval. Identifiability is measured, not assumed: the emulator of round 1 says
 moving a parameter across its prior box moves each statistic, in units of the statistic's
 run-to-run noise (its *effect*), and a parameter counts as identified only when that
 effect is at least :data:`MIN_EFFECT` and its interval lies within ±25 % of its value.
-Any other parameter keeps the prior's value, and says so.
+Any other parameter is reported as not identifiable and keeps the prior's value, unless
+the logs rule that value out (it lies outside the parameter's 90 % posterior interval):
+then the profile takes the posterior's median, so that it reproduces the logged motion,
+and the report says that the value is not a confident one.
 """
 
 from __future__ import annotations

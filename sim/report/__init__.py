@@ -34,8 +34,10 @@ from tumblebot.sim.report.tables import (
     load_results,
     one_parameter_slices,
     paired_p,
+    rebuild_pairs,
     reference_study,
     universal_check,
+    would_i_still_build_it,
 )
 
 __all__ = ["THESIS_TABLE_31", "THESIS_TABLE_31_P", "THESIS_TABLE_32", "Evaluated", "StudyResult", "paired_p",
@@ -79,8 +81,11 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     universal_tasks = sorted({r.tasks[0] for r in single})
     total = len(usable) + 9 + len(PARAMETERS) * slice_points + len(universal_tasks) ** 2
     out_dir.mkdir(parents=True, exist_ok=True)
+    given = servo
     controller, servo = common_controller(results, controller, servo)
+    pairs, missing = rebuild_pairs(usable, servo) if given is not None else ([], "")
     ev = Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo, allow_servo_mismatch)
+    rebuild: list[dict[str, object]] = []
     try:
         for r in usable:
             r.best = ev(r.extra["best_design"], r.tasks)
@@ -89,6 +94,15 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         table32 = build_table32(ev, reference, ref_task)
         universal = universal_check(ev, single, universal_tasks)
         slices = one_parameter_slices(ev, reference, slice_points)
+        if pairs:
+            from tumblebot.sim.physics import THESIS
+
+            ev_thesis = Evaluator(all_tasks, episodes, workers, seed, 0, False, controller, THESIS,
+                                  allow_servo_mismatch)
+            try:
+                rebuild = would_i_still_build_it(pairs, ev, ev_thesis, servo)
+            finally:
+                ev_thesis.close()
     finally:
         ev.close()
     data = {"storage": redact_url(storage_url), "studies": [r.name for r in results], "episodes": episodes,
@@ -96,7 +110,8 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
             "controller": controller, "servo": servo.record(),
-            "table31": table31, "table32": table32, "universal": universal, "slices": slices}
+            "table31": table31, "table32": table32, "universal": universal, "slices": slices,
+            "rebuild": rebuild, "rebuild_missing": missing}
     plots = draw_plots(results, reference, slices, out_dir)
     text = render_markdown(results, reference, ref_task, data, plots)
     (out_dir / "report.md").write_text(text)

@@ -101,7 +101,35 @@ def render_markdown(results: list[StudyResult], reference: StudyResult, task: st
             *(["![the front: R against e(w)](front.png)", ""] if "front" in plots else []),
             "## Compared with the thesis", ""]
     out += _findings(data, reference, task)
+    out += _rebuild(data)
     return "\n".join(out) + "\n"
+
+
+def _rebuild(data: dict[str, Any]) -> list[str]:
+    """"Would I still build it?": the thesis-world optimum against the one found for the profile."""
+    rows, missing = data.get("rebuild") or [], data.get("rebuild_missing") or ""
+    if not rows and not missing:
+        return []
+    name = data["servo"].get("name", "the profile")
+    out = ["", f"## Would I still build it? (under `{name}`)", ""]
+    if missing:
+        return [*out, f"Not answered: {missing}."]
+    out += [f"Each optimum scored on the same {data['episodes']} episodes per task under both worlds (mean "
+            "per-episode objective; paired t-test).", "",
+            "| objective | world | thesis-world optimum | optimum for the profile | p |", "|---|---|---|---|---|"]
+    for r in rows:
+        for world, label in (("physics", f"`{name}`"), ("thesis", "thesis")):
+            w = r[world]
+            out.append(f"| {r['objective']} | {label} | {w['thesis_optimum']:.3f} | {w['physics_optimum']:.3f} | "
+                       f"{_fmt_p(w['p'])} |")
+    out.append("")
+    for r in rows:
+        t, m = r["thesis_optimum"], r["physics_optimum"]
+        out.append(f"- {r['objective']}: thesis-world optimum (`{r['thesis_study']}`) x, y, z, l = "
+                   f"{t['x']:.3f}, {t['y']:.3f}, {t['z']:.3f}, {t['l']:.3f}; optimum for the profile "
+                   f"(`{r['physics_study']}`) {m['x']:.3f}, {m['y']:.3f}, {m['z']:.3f}, {m['l']:.3f}. "
+                   f"**{r['verdict']}**")
+    return out
 
 
 def _findings(data: dict[str, Any], reference: StudyResult, task: str) -> list[str]:

@@ -331,3 +331,73 @@ def one_parameter_slices(ev: Evaluator, reference: StudyResult, points: int) -> 
             rows.append({"value": float(v), "objective": mean, "ci95": [mean - half, mean + half], "can_tumble": True})
         out["parameters"][name] = rows
     return out
+
+
+def rebuild_pairs(usable: list[StudyResult], physics: Servo) -> tuple[list[tuple[StudyResult, StudyResult]], str]:
+    """For "would I still build it?": each study optimised under ``physics`` with the study
+    of the same objective optimised under ``thesis``. Returns the pairs, and when there
+    are none, a line that says what is missing."""
+    from tumblebot.sim.physics import THESIS
+
+    if physics.same_as(THESIS):
+        return [], ""
+    mine = [r for r in usable if r.config.servo().same_as(physics)]
+    theirs = [r for r in usable if r.config.servo().same_as(THESIS)]
+
+    def key(r: StudyResult) -> tuple[Any, ...]:
+        o = r.objective
+        return tuple(sorted(o.weights.items())), o.xi, o.variant
+
+    pairs = [(t, m) for m in mine for t in theirs if key(t) == key(m)]
+    if pairs:
+        return pairs, ""
+    if not mine:
+        return [], (f"none of these studies was optimised under {physics.name}: run tumblebot optimize with "
+                    f"--physics and give that study to --study too")
+    return [], (f"no study of the same objective was optimised under thesis: give one with --study to compare "
+                f"{', '.join(r.name for r in mine)} with")
+
+
+def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Evaluator, ev_thesis: Evaluator,
+                           physics: Servo) -> list[dict[str, Any]]:
+    """The thesis-world optimum and the optimum under ``physics``, each scored under both
+    worlds on the same episodes (per-episode objective, paired t-test), and the verdict."""
+    rows = []
+    for thesis_study, mine in pairs:
+        assert thesis_study.best is not None and mine.best is not None
+        objective = mine.objective
+        tasks = objective.tasks
+        w_t, w_m = thesis_study.best.design, mine.best.design
+        score: dict[str, dict[str, np.ndarray]] = {}
+        for world, evaluator in (("physics", ev), ("thesis", ev_thesis)):
+            score[world] = {}
+            for label, w in (("thesis_optimum", w_t), ("physics_optimum", w_m)):
+                evaluated = evaluator(w, tasks)
+                score[world][label] = objective.per_episode(evaluated.R, evaluated.e) if tasks else \
+                    np.array([-evaluated.e])
+        row: dict[str, Any] = {"objective": objective.describe(), "thesis_study": thesis_study.name,
+                               "physics_study": mine.name, "thesis_optimum": w_t.as_dict(),
+                               "physics_optimum": w_m.as_dict()}
+        for world in ("physics", "thesis"):
+            a, b = score[world]["thesis_optimum"], score[world]["physics_optimum"]
+            row[world] = {"thesis_optimum": float(np.nanmean(a)), "physics_optimum": float(np.nanmean(b)),
+                          "p": paired_p(a, b)}
+        under = row["physics"]
+        better = under["physics_optimum"] > under["thesis_optimum"]
+        significant = under["p"] is not None and under["p"] < 0.05
+        if significant and better:
+            row["verdict"] = (f"No: under {physics.name} the optimum found for it scores "
+                              f"{under['physics_optimum']:.3f} against the thesis-world optimum's "
+                              f"{under['thesis_optimum']:.3f} (paired p = {under['p']:.3g}): build the recalibrated "
+                              "robot.")
+        elif significant:
+            row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum scores better "
+                              f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
+                              f"{under['p']:.3g}); the search under {physics.name} did not find better.")
+        else:
+            p = "n/a" if under["p"] is None else f"{under['p']:.3g}"
+            row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum ties the optimum found for it "
+                              f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
+                              f"{p}): the robot you built is still the one to build.")
+        rows.append(row)
+    return rows

@@ -551,3 +551,32 @@ def test_that_a_url_is_shown_without_its_password() -> None:
         "postgresql://lab@db/tb?password=***&sslmode=require"
     assert redact_url("sqlite:///runs/demo.db") == "sqlite:///runs/demo.db"
     assert scrub_password("auth failed for p@ss", "postgresql://lab:p%40ss@db/tb") == "auth failed for ***"
+
+
+def test_that_the_report_says_whether_the_thesis_optimum_is_still_the_robot_to_build(tmp_path: Path) -> None:
+    """``report --physics P`` with a study optimised under ``thesis`` and one under ``P``:
+    both optima scored under both worlds on the same episodes, and a one-line verdict."""
+    storage = f"sqlite:///{tmp_path / 'r.db'}"
+    lab = tmp_path / "lab.json"
+    lab.write_text('{"name": "lab", "free_speed": 4.5, "stall_torque": 0.4, "friction": 0.6}')
+    for study, extra in (("thesis-world", []), ("lab-world", ["--physics", str(lab)])):
+        run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "4", "--batch", "2", "--gait", "goto",
+                 "--storage", storage, "--study", study, "--quiet", *extra)
+        assert run.returncode == 0, run.stderr
+    out = tmp_path / "rep"
+    rep = tb("report", "--storage", storage, "--study", "thesis-world", "--study", "lab-world", "--physics", str(lab),
+             "--gait", "goto", "-o", str(out), "--episodes", "4", "--slice-points", "2", "--quiet")
+    assert rep.returncode == 0, rep.stderr
+    data = json.loads((out / "report.json").read_text())
+    [row] = data["rebuild"]
+    assert row["thesis_study"] == "thesis-world" and row["physics_study"] == "lab-world"
+    for world in ("physics", "thesis"):
+        assert set(row[world]) == {"thesis_optimum", "physics_optimum", "p"}
+    assert row["verdict"].startswith(("Yes:", "No:"))
+    text = (out / "report.md").read_text()
+    assert "## Would I still build it? (under `lab`)" in text and row["verdict"] in text
+    # without a study of the profile's world, the section says what is missing
+    alone = tb("report", "--storage", storage, "--study", "thesis-world", "--physics", str(lab), "--gait", "goto",
+               "-o", str(tmp_path / "rep2"), "--episodes", "2", "--slice-points", "2", "--quiet")
+    assert alone.returncode == 0, alone.stderr
+    assert "Not answered: none of these studies was optimised under lab" in (tmp_path / "rep2" / "report.md").read_text()
