@@ -59,8 +59,9 @@ STILL = 0.005  #: m: a step that moves less than this never "gets under way"
 CLASSES = ("drive", "spin", "pivot", "stop")  #: both legs one way; opposite ways; one leg; none
 
 
-#: a full quadratic in the fitted parameters has 1 + k + k(k+1)/2 coefficients; a few more points than that
-MIN_DESIGN_POINTS = 1 + 6 + 21 + 4
+#: a full quadratic in the six fitted parameters has 1 + 6 + 21 = 28 coefficients: a round
+#: needs about twice as many simulated points to fit it and to measure its own error
+MIN_DESIGN_POINTS = 64
 
 
 class CalibrationError(SimError):

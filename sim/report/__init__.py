@@ -95,14 +95,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         universal = universal_check(ev, single, universal_tasks)
         slices = one_parameter_slices(ev, reference, slice_points)
         if pairs:
-            from tumblebot.sim.physics import THESIS
-
-            ev_thesis = Evaluator(all_tasks, episodes, workers, seed, 0, False, controller, THESIS,
-                                  allow_servo_mismatch)
-            try:
-                rebuild = would_i_still_build_it(pairs, ev, ev_thesis, servo)
-            finally:
-                ev_thesis.close()
+            rebuild = would_i_still_build_it(pairs, ev, servo, allow_servo_mismatch)
     finally:
         ev.close()
     data = {"storage": redact_url(storage_url), "studies": [r.name for r in results], "episodes": episodes,

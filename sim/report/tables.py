@@ -110,6 +110,7 @@ class Evaluator:
                                      servo=servo)
                        if tasks else None)
         self.episodes, self.seed = episodes, seed
+        self.tasks, self.workers, self.controller = tasks, workers, controller
         self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
         self.bar: Any = None
         if progress and tasks:
@@ -358,46 +359,56 @@ def rebuild_pairs(usable: list[StudyResult], physics: Servo) -> tuple[list[tuple
                 f"{', '.join(r.name for r in mine)} with")
 
 
-def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Evaluator, ev_thesis: Evaluator,
-                           physics: Servo) -> list[dict[str, Any]]:
-    """The thesis-world optimum and the optimum under ``physics``, each scored under both
-    worlds on the same episodes (per-episode objective, paired t-test), and the verdict."""
-    rows = []
-    for thesis_study, mine in pairs:
-        assert thesis_study.best is not None and mine.best is not None
-        objective = mine.objective
-        tasks = objective.tasks
-        w_t, w_m = thesis_study.best.design, mine.best.design
-        score: dict[str, dict[str, np.ndarray]] = {}
-        for world, evaluator in (("physics", ev), ("thesis", ev_thesis)):
-            score[world] = {}
-            for label, w in (("thesis_optimum", w_t), ("physics_optimum", w_m)):
-                evaluated = evaluator(w, tasks)
-                score[world][label] = objective.per_episode(evaluated.R, evaluated.e) if tasks else \
-                    np.array([-evaluated.e])
-        row: dict[str, Any] = {"objective": objective.describe(), "thesis_study": thesis_study.name,
-                               "physics_study": mine.name, "thesis_optimum": w_t.as_dict(),
-                               "physics_optimum": w_m.as_dict()}
-        for world in ("physics", "thesis"):
-            a, b = score[world]["thesis_optimum"], score[world]["physics_optimum"]
-            row[world] = {"thesis_optimum": float(np.nanmean(a)), "physics_optimum": float(np.nanmean(b)),
-                          "p": paired_p(a, b)}
-        under = row["physics"]
-        better = under["physics_optimum"] > under["thesis_optimum"]
-        significant = under["p"] is not None and under["p"] < 0.05
-        if significant and better:
-            row["verdict"] = (f"No: under {physics.name} the optimum found for it scores "
-                              f"{under['physics_optimum']:.3f} against the thesis-world optimum's "
-                              f"{under['thesis_optimum']:.3f} (paired p = {under['p']:.3g}): build the recalibrated "
-                              "robot.")
-        elif significant:
-            row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum scores better "
-                              f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
-                              f"{under['p']:.3g}); the search under {physics.name} did not find better.")
-        else:
-            p = "n/a" if under["p"] is None else f"{under['p']:.3g}"
-            row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum ties the optimum found for it "
-                              f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
-                              f"{p}): the robot you built is still the one to build.")
-        rows.append(row)
-    return rows
+def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Evaluator, physics: Servo,
+                           allow_servo_mismatch: bool = False) -> list[dict[str, Any]]:
+    """The thesis-world optimum and the optimum under ``physics`` (``ev``'s world), each
+    scored under both worlds on the same episodes (per-episode objective, paired t-test),
+    and the verdict."""
+    from tumblebot.sim.physics import THESIS
+
+    ev_thesis = Evaluator(list(ev.tasks), ev.episodes, ev.workers, ev.seed, 0, False, ev.controller, THESIS,
+                          allow_servo_mismatch)
+    try:
+        return [_rebuild_row(thesis_study, mine, ev, ev_thesis, physics) for thesis_study, mine in pairs]
+    finally:
+        ev_thesis.close()
+
+
+def _rebuild_row(thesis_study: StudyResult, mine: StudyResult, ev: Evaluator, ev_thesis: Evaluator,
+                 physics: Servo) -> dict[str, Any]:
+    assert thesis_study.best is not None and mine.best is not None
+    objective = mine.objective
+    tasks = objective.tasks
+    w_t, w_m = thesis_study.best.design, mine.best.design
+    score: dict[str, dict[str, np.ndarray]] = {}
+    for world, evaluator in (("physics", ev), ("thesis", ev_thesis)):
+        score[world] = {}
+        for label, w in (("thesis_optimum", w_t), ("physics_optimum", w_m)):
+            evaluated = evaluator(w, tasks)
+            score[world][label] = objective.per_episode(evaluated.R, evaluated.e) if tasks else \
+                np.array([-evaluated.e])
+    row: dict[str, Any] = {"objective": objective.describe(), "thesis_study": thesis_study.name,
+                           "physics_study": mine.name, "thesis_optimum": w_t.as_dict(),
+                           "physics_optimum": w_m.as_dict()}
+    for world in ("physics", "thesis"):
+        a, b = score[world]["thesis_optimum"], score[world]["physics_optimum"]
+        row[world] = {"thesis_optimum": float(np.nanmean(a)), "physics_optimum": float(np.nanmean(b)),
+                      "p": paired_p(a, b)}
+    under = row["physics"]
+    better = under["physics_optimum"] > under["thesis_optimum"]
+    significant = under["p"] is not None and under["p"] < 0.05
+    if significant and better:
+        row["verdict"] = (f"No: under {physics.name} the optimum found for it scores "
+                          f"{under['physics_optimum']:.3f} against the thesis-world optimum's "
+                          f"{under['thesis_optimum']:.3f} (paired p = {under['p']:.3g}): build the recalibrated "
+                          "robot.")
+    elif significant:
+        row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum scores better "
+                          f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
+                          f"{under['p']:.3g}); the search under {physics.name} did not find better.")
+    else:
+        p = "n/a" if under["p"] is None else f"{under['p']:.3g}"
+        row["verdict"] = (f"Yes: under {physics.name} the thesis-world optimum ties the optimum found for it "
+                          f"({under['thesis_optimum']:.3f} against {under['physics_optimum']:.3f}, paired p = "
+                          f"{p}): the robot you built is still the one to build.")
+    return row

@@ -3,6 +3,7 @@ the real firmware in simavr (no pose source: the checks that need one say so).""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import subprocess
@@ -137,3 +138,30 @@ def test_that_body_roll_sums_turns_about_the_leg_axis_through_whole_tumbles() ->
     assert motion([_pose(0, 0.0), _pose(1, 0.1, (0.003, 0.004))]) == pytest.approx((0.005, 0.1))
     level, face, tilt = resting_frame(_pose(0, math.pi / 2))  # rolled a quarter turn: resting on a side
     assert level == pytest.approx(0.0, abs=1e-9) and face == "+y" and tilt == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.slow
+def test_that_bench_excite_runs_the_identification_run_as_a_trial_set(tmp_path: Path,
+                                                                      agent: tuple[str, Path]) -> None:
+    """One start point, one run: the robot (a still mock pose at the start point) is driven by
+    the scripted commands, logged like any trial, with the time each command left."""
+    from tumblebot.host.triallog import read_trial
+    from tumblebot.host.trials import load_index
+    from tumblebot.sim.gaits import EXCITATION
+
+    address, key = agent
+    out = tmp_path / "excite"
+    run = tb("bench", "excite", "--out", str(out), "--mocap", "mock://?x=1.5&y=0", "--agent", address, "--key",
+             str(key), "--design", "0.292,0.129,0.098,0.136", "--radius", "1.5", "--points", "1", "--per-point", "1",
+             timeout=300)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    assert json.loads((out / "plan.json").read_text())["policy"] == "excite"
+    [trial] = load_index(out)["trials"]
+    decisions = read_trial(out / trial["file"]).topic("/decision")
+    assert [tuple(d.data["command"]) for d in decisions] == [(a - 1, b - 1) for a, b in EXCITATION]
+    times = [d.data["t"] for d in decisions]
+    assert all(0.9 < b - a < 1.2 for a, b in itertools.pairwise(times))
+    again = tb("bench", "excite", "--out", str(out), "--mocap", "mock://?x=1.5&y=0", "--agent", address, "--key",
+               str(key), "--design", "0.292,0.129,0.098,0.136", "--radius", "1.5", "--points", "1", "--per-point",
+               "1", timeout=120)  # the same command resumes: nothing left to run
+    assert again.returncode == 0 and len(load_index(out)["trials"]) == 1, again.stderr

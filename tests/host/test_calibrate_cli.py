@@ -89,8 +89,10 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
     for name, p in result["parameters"].items():
         assert set(p) >= {"value", "low", "high", "identifiable"}, name
         assert p["low"] <= p["value"] <= p["high"]
+    for name in ("free_speed", "stall_torque", "friction"):  # what it calls identified holds the truth
+        p = result["parameters"][name]
+        assert not p["identifiable"] or p["low"] <= getattr(HIDDEN, name) <= p["high"], (name, p)
     speed = result["parameters"]["free_speed"]
-    assert speed["identifiable"] and speed["low"] <= HIDDEN.free_speed <= speed["high"]
     assert result["fit"]["simulated_sets"] == 3 * 8 + 2 * MIN_DESIGN_POINTS - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]

@@ -579,4 +579,5 @@ def test_that_the_report_says_whether_the_thesis_optimum_is_still_the_robot_to_b
     alone = tb("report", "--storage", storage, "--study", "thesis-world", "--physics", str(lab), "--gait", "goto",
                "-o", str(tmp_path / "rep2"), "--episodes", "2", "--slice-points", "2", "--quiet")
     assert alone.returncode == 0, alone.stderr
-    assert "Not answered: none of these studies was optimised under lab" in (tmp_path / "rep2" / "report.md").read_text()
+    text = (tmp_path / "rep2" / "report.md").read_text()
+    assert "Not answered: none of these studies was optimised under lab" in text
