@@ -129,8 +129,8 @@ def open_loop(holdout: Path, fitted: PhysicsProfile) -> tuple[float, float]:
     log_med, open_fit, q_fit = replay_prediction(holdout, fitted)
     _, open_thesis, q_thesis = replay_prediction(holdout, THESIS)
     print(f"  held-out identification runs, open loop (their commands replayed): distance from start to end, "
-          f"logged median {log_med:.3f} m; simulated under the fitted profile {open_fit:.3f} m (p = {q_fit:.3f}), under "
-          f"thesis {open_thesis:.3f} m (p = {q_thesis:.3f})")
+          f"logged median {log_med:.3f} m; simulated under the fitted profile {open_fit:.3f} m (p = {q_fit:.3f}), "
+          f"under thesis {open_thesis:.3f} m (p = {q_thesis:.3f})")
     return q_fit, q_thesis
 
 
