@@ -406,7 +406,10 @@ def _add_bench_commands(sub: Any) -> None:
                                     "the trial protocol's start points, logged like any trial (resume it with the "
                                     "same command). tumblebot calibrate takes it and ordinary trials alike. The "
                                     "robot moves about a metre from each start point: give it room.")
-    _add_link_args(e)
+    e.add_argument("--agent", required=True, help="the Pi agent's HOST:PORT (UDP, default port 47800)")
+    e.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
+    e.add_argument("--take-over", action="store_true",
+                   help="take control of the robot from another host on the same key (it is told, and stops)")
     e.add_argument("--mocap", required=True, help="pose source, as for trial run (udp://HOST:PORT?body=B, …)")
     e.add_argument("--out", type=Path, required=True, help="trial-set folder (created; an existing one is resumed)")
     e.add_argument("--design", required=True, help="the robot's design x,y,z,l (m)")
