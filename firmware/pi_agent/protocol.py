@@ -645,12 +645,20 @@ class ReplayGuard:
     """Per sender: the newest epoch and the highest counter in it, for at most
     :data:`MAX_SENDERS` senders (least recently accepted evicted first; ``evicted``
     counts them). Call :meth:`check` only on datagrams whose MAC verified; it updates
-    state only when it accepts."""
+    state only when it accepts.
+
+    Eviction must not reopen replay: a flood of captured datagrams from many old sender
+    ids would otherwise push a host's state out and let its own old datagrams in again.
+    So the guard remembers the newest epoch it ever evicted (``floor``), and a sender it
+    does not know is accepted only with a newer epoch. A host evicted by such a flood is
+    then refused as well, until it restarts with a new epoch: a flood can stop the robot,
+    never move it."""
 
     def __init__(self, max_senders: int = MAX_SENDERS) -> None:
         self._state: collections.OrderedDict[int, tuple[int, int]] = collections.OrderedDict()
         self.max_senders = max_senders
         self.evicted = 0
+        self.floor = -1  #: the newest epoch of any evicted sender; unknown senders must be newer
 
     def check(self, d: Datagram) -> DropReason | None:
         last = self._state.get(d.sender)
@@ -660,10 +668,13 @@ class ReplayGuard:
                 return DropReason.STALE
             if d.epoch == epoch and d.counter <= counter:
                 return DropReason.REPLAYED
+        elif d.epoch <= self.floor:
+            return DropReason.STALE
         self._state[d.sender] = (d.epoch, d.counter)
         self._state.move_to_end(d.sender)
         while len(self._state) > self.max_senders:
-            self._state.popitem(last=False)
+            _, (epoch, _) = self._state.popitem(last=False)
+            self.floor = max(self.floor, epoch)
             self.evicted += 1
         return None
 

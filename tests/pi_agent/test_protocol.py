@@ -162,9 +162,26 @@ def test_that_the_replay_guard_wants_increasing_counters_per_sender_and_epoch() 
 def test_that_a_sender_id_flood_keeps_the_replay_state_bounded() -> None:
     guard = P.ReplayGuard()
     assert guard.check(command(10, sender=1)) is None
-    for sender in range(2, 40_000):
-        guard.check(command(1, sender=sender))
+    for sender in range(2, 40_000):  # each a new sender id with a newer epoch: all accepted, the oldest evicted
+        guard.check(command(1, sender=sender, epoch=100 + sender))
     assert len(guard) == P.MAX_SENDERS and guard.evicted == 40_000 - 1 - P.MAX_SENDERS
+
+
+def test_replay_after_a_sender_flood_evicts_the_victim_is_stale() -> None:
+    """The attack: replay captured datagrams of 32+ old host processes (each its own sender id
+    and an older epoch) to push the running host's replay state out, then replay that host's
+    own last datagram. Eviction leaves a floor: no unknown sender at or below it gets in."""
+    guard = P.ReplayGuard()
+    victim = command(50, sender=7, epoch=1_000)
+    assert guard.check(victim) is None
+    for old in range(P.MAX_SENDERS):  # captured long ago: older epochs, other sender ids; the last
+        assert guard.check(command(1, sender=1000 + old, epoch=900 + old)) is None  # pushes the victim out
+    assert guard.evicted == 1 and guard.floor == 1_000
+    assert guard.check(command(1, sender=2001, epoch=998)) is P.DropReason.STALE  # the rest of the flood too
+    assert guard.check(victim) is P.DropReason.STALE
+    assert guard.check(command(51, sender=7, epoch=1_000)) is P.DropReason.STALE  # the victim must restart
+    assert guard.check(command(1, sender=7, epoch=1_001)) is None  # and then gets in, with its new epoch
+    assert guard.check(command(1, sender=99, epoch=1_002)) is None  # as does any newer host
 
 
 def test_that_malformed_datagrams_are_refused_without_a_crash() -> None:
