@@ -494,7 +494,8 @@ def _add_calibrate_command(sub: Any, positive_int: Any, check_writable: Any) -> 
     c.add_argument("--design", help="refuse logs of any other design x,y,z,l (m)")
     c.add_argument("--plot", type=Path, help="the fit's picture (default calibration.png beside PROFILE)")
     c.add_argument("--budget", type=positive_int, default=128,
-                   help="simulated trial sets in the first round (default 128; the second has half)")
+                   help="simulated trial sets in the first round (default 128, at least 64; the second has half, "
+                        "at least 64)")
     c.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     c.add_argument("--seed", type=int, default=0, help="seed of the fit's designs and simulations (default 0)")
     c.add_argument("--json", action="store_true",
