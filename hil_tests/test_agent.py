@@ -492,12 +492,15 @@ def test_that_a_sender_id_flood_keeps_the_agent_state_bounded(chain) -> None:  #
     uno, host, agent, _ = chain
     for sender in range(1000, 41_000):  # a key holder inventing sender ids
         host.send(host.datagram(P.UdpType.TELEMETRY_REQUEST, P.nonce_payload(0), sender=sender))
-        if sender % 200 == 199:
-            host.telemetry()  # answered after the batch: the kernel never drops one (see the fuzz test)
+        every = 16 if sender < 1200 else 200  # the real host keeps talking, so it is never the least recent
+        if sender % every == every - 1:  # sender (answered after the batch: the kernel never drops one)
+            host.telemetry()
     telemetry = host.telemetry()
-    assert telemetry["senders"] <= P.MAX_SENDERS and telemetry["senders_evicted"] >= 40_000 - P.MAX_SENDERS
+    # bounded, and once one sender of this epoch was evicted, unknown senders of it are stale
+    # (eviction leaves a floor, so it cannot reopen replay): the flood stops being accepted
+    assert telemetry["senders"] <= P.MAX_SENDERS and 1 <= telemetry["senders_evicted"] <= P.MAX_SENDERS
     assert agent.poll() is None
-    drive(host, uno, (1, 1), (2000.0, 1000.0))
+    drive(host, uno, (1, 1), (2000.0, 1000.0))  # the host kept talking, so it was never evicted
 
 
 def test_that_a_stop_flood_does_not_flood_the_serial_link(chain) -> None:  # type: ignore[no-untyped-def]
