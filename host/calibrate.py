@@ -120,14 +120,14 @@ def cache_path(output: Path) -> Path:
     return output.with_name(f".{output.name}.calibrate-cache.jsonl")
 
 
-def run_calibration(folders: list[Path], output: Path, prior: Any, design: tuple[float, float, float, float] | None,
-                    workers: int, settings: Any, plot_path: Path, say: Any, progress: bool = True) -> Any:
-    """Load, fit, write ``output`` (the profile) and ``plot_path``; returns the calibration."""
+def run_calibration(trials: list[LoggedTrial], folders: list[Path], output: Path, prior: Any, workers: int,
+                    settings: Any, plot_path: Path, say: Any, progress: bool = True) -> Any:
+    """Fit ``trials`` (read by :func:`load_trials` from ``folders``), write ``output`` (the
+    profile) and ``plot_path``; returns the calibration."""
     from tqdm import tqdm
 
     from tumblebot.sim.calibration import Simulator, calibrate, plot
 
-    trials = load_trials(folders, design)
     say(f"{len(trials)} trials, {sum(len(t.trace.commands) for t in trials)} steps, from "
         f"{', '.join(str(f) for f in folders)}")
     total = settings.replicates * 3 + sum(settings.rounds())

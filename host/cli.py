@@ -449,7 +449,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     settings = Settings(design_points=args.budget, seed=args.seed)
     from tumblebot.host.calibrate import load_trials
 
-    load_trials(args.trialdir, design)  # every log is checked before any work or write
+    trials = load_trials(args.trialdir, design)  # every log is checked before any work or write
     quiet = args.json
 
     def note(line: str) -> None:
@@ -457,7 +457,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             say(line)
 
     try:
-        result = run_calibration(args.trialdir, args.output, prior, design, args.workers, settings, plot, note,
+        result = run_calibration(trials, args.trialdir, args.output, prior, args.workers, settings, plot, note,
                                  progress=not quiet and sys.stderr.isatty())
     except KeyboardInterrupt:
         from tumblebot.host.calibrate import cache_path
