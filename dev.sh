@@ -72,14 +72,14 @@ case "$cmd" in
             --episodes 48 --slice-points 5 --workers 2
         ;;
     setup)
-        ensure_venv "train,opt,host,build,dev,agent"
+        ensure_venv "train,opt,host,build,dev,agent,docs"
         ;;
     test)
         shift
         if [[ ${1:-} == "--fast" ]]; then
             shift
             apt_install $FIRMWARE_PACKAGES  # the firmware build test runs in the fast loop too
-            ensure_venv "train,opt,host,build,dev,agent"
+            ensure_venv "train,opt,host,build,dev,agent,docs"
             echo "dev.sh: ruff"
             "$VENV/bin/ruff" check .
             echo "dev.sh: mypy (strict: the package, then tests, hil_tests, benchmarks and reports)"
@@ -90,7 +90,7 @@ case "$cmd" in
         fi
         apt_install $FIRMWARE_PACKAGES postgresql chromium
         command -v npm >/dev/null 2>&1 || apt_install nodejs npm
-        ensure_venv "train,opt,host,build,dev,agent"
+        ensure_venv "train,opt,host,build,dev,agent,docs"
         echo "dev.sh: Foxglove Studio for the viewer test (npm ci in docs/screenshot)"
         (cd docs/screenshot && npm ci --no-audit --no-fund --silent)
         echo "dev.sh: firmware build (Debian avr-gcc)"

@@ -11,6 +11,7 @@ from typing import Any
 
 from tumblebot.defaults import XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
+from tumblebot.paths import check_writable_folder
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -89,6 +90,7 @@ def _trial_run(args: argparse.Namespace) -> int:
     plan = make_plan(args.setpoint, args.heading, args.radius, args.points, args.per_point, task, policy_path,
                      design, args.seed, config)
     key = load_host_key(args.key)  # everything is checked before the trial set is created or touched
+    check_writable_folder(args.out, "--out")
     address = parse_address(args.agent)
     twin = parse_address(args.twin) if args.twin else None
     listen = parse_listen(args.foxglove) if args.foxglove is not None else None

@@ -1,7 +1,7 @@
 """Crash-safe trial logs: one MCAP file per trial, JSON messages with JSON schemas.
 
 The writer never chunks, and flushes and fsyncs after every message, so a ``kill -9`` at
-any moment loses at most the message being written (SPEC §6: with default settings
+any moment loses at most the message being written (with default settings
 ``mcap`` loses the whole file). ``finish()`` runs in ``finally`` and writes the summary;
 a file without it is still read by :func:`read_trial`, which streams records and stops
 cleanly at a truncated tail. The logs open in Foxglove (topics ``/pose``, ``/command``,

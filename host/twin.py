@@ -45,7 +45,7 @@ NEUTRAL_US = 1500.0
 FULL_SPEED_US = 500.0  #: pulse offset for full speed (1000/2000 µs)
 DEADBAND_US = 10.0  #: continuous-rotation servos do not move within a few µs of neutral
 #: Physical servo mounting: the right servo turns its leg forward for longer pulses; the
-#: left one is mounted mirrored (SPEC §5).
+#: left one is mounted mirrored.
 MOUNTING = {"right": +1.0, "left": -1.0}
 LATE_SUBSTEPS = 10  #: 42 ms at 240 Hz: the most the world may fall behind before a substep counts as late
 

@@ -1,4 +1,4 @@
-"""Frame transformations between the lab (mocap) frame and a task's frame (SPEC §2).
+"""Frame transformations between the lab (mocap) frame and a task's frame.
 
 The tasks are posed toward the origin (navigation) or along +x (distance, incline). To
 drive to any setpoint, or along any heading, the host expresses the robot's pose in a

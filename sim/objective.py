@@ -3,7 +3,7 @@
 Per task ``f(R, w) = R / (e(w) + 1)^ξ``; the design objective is the batch mean of
 ``Σ_i λ_i·f_i``. ``ξ = ∞`` means "minimise ``e(w)`` alone", expressed as ``f = −e``.
 
-Caution (SPEC §4): for ``R < 0`` the thesis form *rewards* a larger ``e`` (dividing a
+Caution: for ``R < 0`` the thesis form *rewards* a larger ``e`` (dividing a
 negative number by a larger one brings it toward 0). ``variant="monotone"`` multiplies
 instead when ``R < 0``, so ``f`` always falls as ``e`` rises. ``"thesis"`` is the default;
 results say which one they used.

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.tasks import same_goal
 
 #: The thesis observation, the environment's (``TumblerEnv`` takes it from here; this
 #: module needs no PyBullet): position, orientation quaternion, last command.
@@ -228,6 +229,11 @@ class OnnxPolicy:
             raise PolicyError(f"model card {cpath} must hold a JSON object")
         if task is not None and card.get("task") != task:
             raise PolicyError(f"policy {path} was trained for task {card.get('task')!r}, not {task!r}")
+        training = card.get("training_config")
+        trained = training.get("task") if isinstance(training, dict) else None
+        if trained is not None and not same_goal(str(trained), str(card.get("task"))):
+            raise PolicyError(f"model card {cpath} says task {card.get('task')!r} but its training config "
+                              f"says {trained!r}: the card does not describe this policy")
         observation = card.get("observation")
         if not isinstance(observation, dict) or not isinstance(observation.get("fields"), list):
             raise PolicyError(f"model card {cpath} has no observation layout (observation.fields)")

@@ -1,6 +1,6 @@
 """The thesis's power model: estimated electrical energy per metre, ``e(w)`` in W/m.
 
-Thesis §2.5 and Appendix A, with the corrections of SPEC §3:
+Thesis §2.5 and Appendix A, with these corrections:
 
 * Per motor ``P = (τ/ke)²·R + γ̇·τ``, modelled as a single motor carrying all the torque.
 * Torque about the pivot corner ``τ(θ) = r·m·g·sin(θ + φ + π/2) − I·θ̈`` with

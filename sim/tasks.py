@@ -1,7 +1,7 @@
 """The four tasks of thesis §2.3: what differs between them, and nothing else.
 
 A task fixes the terrain, where the robot starts, and the reward of a state. Rewards use
-the corrected formulas of SPEC §2 (the thesis prints ``sqrt(vx + vy)``; the squares are
+the corrected formulas (the thesis prints ``sqrt(vx + vy)``; the squares are
 intended). This module is pure numpy: the host and the optimiser use it without PyBullet.
 
 Tasks are posed toward the origin or along +x without loss of generality; the host maps
@@ -98,6 +98,15 @@ TASKS: dict[str, TaskSpec] = {
         ),
     )
 }
+
+
+def same_goal(a: str, b: str) -> bool:
+    """Whether a policy trained for task ``a`` may serve task ``b``: the same reward from the
+    same start, on other ground (``nav-flat`` and ``nav-terrain``). Unknown names: False."""
+    if a not in TASKS or b not in TASKS:
+        return False
+    ta, tb = TASKS[a], TASKS[b]
+    return ta.state_reward is tb.state_reward and ta.start == tb.start
 
 
 def get_task(name: str) -> TaskSpec:

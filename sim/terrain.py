@@ -46,7 +46,7 @@ class TerrainConfig:
     """Tile terrain parameters (metres).
 
     Attributes:
-        cells: heightfield grid size per side (64–128 keeps stepping cheap, SPEC §6).
+        cells: heightfield grid size per side (64–128 keeps stepping cheap).
         cell_size: grid spacing; ``cells × cell_size`` is the terrain's side length.
         tile_size: side of one flat-topped tile (a multiple of ``cell_size``).
         max_height: tile heights lie in ``[0, max_height]``.

@@ -1,7 +1,7 @@
 """Building a task's scene in a PyBullet client: ground, terrain or ramp.
 
 Scenes are rebuilt after ``resetSimulation`` every episode: re-creating bodies without it
-leaks memory in PyBullet (SPEC §6), ``resetSimulation`` does not.
+leaks memory in PyBullet, ``resetSimulation`` does not.
 """
 
 from __future__ import annotations

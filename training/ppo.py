@@ -95,6 +95,7 @@ class RunCallback(BaseCallback):
         self.config = config
         self.next_checkpoint = (start_steps // config.checkpoint_every + 1) * config.checkpoint_every
         self.recent: deque[float] = deque(maxlen=200)
+        self.rollout_final: list[float] = []  # this rollout's final-state R, for TensorBoard
         self.bar = tqdm(total=config.total_steps, initial=start_steps, unit="step", dynamic_ncols=True,
                         desc=f"train {config.task}", mininterval=2.0)
         self.csv_file = (run_dir / "episodes.csv").open("a", newline="")
@@ -110,6 +111,7 @@ class RunCallback(BaseCallback):
         for info in self.locals["infos"]:
             if "final_R" in info:
                 self.recent.append(float(info["final_R"]))
+                self.rollout_final.append(float(info["final_R"]))
                 shaped = float(info["episode"]["r"]) if "episode" in info else float("nan")
                 self.writer.writerow((steps, f"{info['final_R']:.5f}", f"{shaped:.5f}",
                                       f"{self.wall_offset + time.monotonic() - self.start_wall:.1f}"))
@@ -121,6 +123,13 @@ class RunCallback(BaseCallback):
             self.save()
             self.next_checkpoint += self.config.checkpoint_every
         return self.stop is None or self.stop.signum is None
+
+    def _on_rollout_end(self) -> None:
+        """TensorBoard's ``rollout/final_R_mean``: the final-state R every curve and card reports,
+        beside SB3's ``rollout/ep_rew_mean`` (the shaped return training maximises)."""
+        if self.rollout_final:
+            self.logger.record("rollout/final_R_mean", float(np.mean(self.rollout_final)))
+            self.rollout_final.clear()
 
     def save(self) -> None:
         self.csv_file.flush()
@@ -280,14 +289,17 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
     config, model, env, start, wall_offset = _open_run(config, run_dir, resume, total_steps)
     with stop_requests() as stop:
         callback = RunCallback(run_dir, config, start, wall_offset, stop)
+        remaining = config.total_steps - start
         try:
-            remaining = config.total_steps - start
-            if remaining > 0:
+            if remaining <= 0:  # a finished run resumed again: nothing to learn, nothing to save
+                print(f"{run_dir} already has {start} steps (its total is {config.total_steps}); "
+                      "--steps N gives it a larger total")
+            else:
                 model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False,
                             tb_log_name="ppo")
-            if stop.signum is not None:
-                raise KeyboardInterrupt
-            callback.save()
+                if stop.signum is not None:
+                    raise KeyboardInterrupt
+                callback.save()
         except KeyboardInterrupt:
             callback.save()
             raise TrainingInterrupted(model.num_timesteps, run_dir) from None
@@ -297,4 +309,8 @@ def train(config: TrainConfig | None, run_dir: Path, resume: bool = False, total
     from tumblebot.training.curves import plot_learning_curve
 
     plot_learning_curve(run_dir / "episodes.csv", run_dir / "learning_curve.png", title=f"{config.task} (PPO)")
+    if model.num_timesteps > config.total_steps and remaining > 0:
+        rollout = config.n_steps * config.envs
+        print(f"stopped at {model.num_timesteps} steps, past the total of {config.total_steps}: PPO collects "
+              f"whole rollouts of {rollout} steps ({config.n_steps} per environment x {config.envs})")
     return run_dir / "latest.zip"

@@ -33,7 +33,7 @@ the most to gain; the GP sees the log of the leg margin ``l - r`` instead of ``l
 :func:`front_optima` reads the optimum of each ``ξ`` from its full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body
-past its balance point (SPEC §3). Such trials cost no episodes; they are recorded with the
+past its balance point. Such trials cost no episodes; they are recorded with the
 reason in their :class:`TrialRecord` (``infeasible``), told to Optuna with the worst feasible value so far,
 and carry the constraint ``r - l <= 0`` so the GP sampler learns where the boundary is (a
 failed trial would be invisible to it, and it would propose the same corner again). They

@@ -57,7 +57,7 @@ class StudyConfig:
     #: gait name (``goto``, the closed-loop navigation controller, or a scripted gait).
     #: Studies made before this field existed load as "policy".
     controller: str = "policy"
-    motor_model: str = "dc"  #: the servo of every episode (SPEC: part of the objective)
+    motor_model: str = "dc"  #: the servo of every episode (part of the objective)
     stall_torque: float = STALL_TORQUE
     #: a front study's ξ values ("0", "1", "3", "inf"); empty for a single-ξ study (and for
     #: every study made before front studies existed).

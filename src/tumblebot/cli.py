@@ -21,6 +21,7 @@ from typing import Any, TypeAlias
 from tumblebot import interrupts
 from tumblebot.defaults import MAX_STALL_TORQUE, OBSERVATION_LAYOUTS, XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
+from tumblebot.paths import check_writable, check_writable_folder
 
 #: The tasks, for help texts (tumblebot.sim.tasks.TASKS is the source, and a test keeps the two
 #: equal; importing tumblebot.sim here would pull gymnasium and numpy into building the parser).
@@ -134,16 +135,12 @@ def _train_run(args: argparse.Namespace) -> int:
 
     run_dir: Path | None = args.run_dir
     if args.resume:
-        if run_dir is None:
-            raise TumblebotError("--resume needs --run-dir RUN (the folder of the run to continue)")
-        if args.init_from is not None:
-            raise TumblebotError("--init-from starts a new run; a resumed run keeps its own weights")
-        from tumblebot.training.ppo import train
-
-        final = train(None, run_dir, resume=True, total_steps=args.steps)
-        print(f"resumed and finished: {final}")
-        return 0
-    task = get_task(args.task)
+        return _train_resume(args)
+    task = get_task(args.task or "nav-flat")
+    if args.init_from is not None and not args.init_from.is_file():
+        raise TumblebotError(f"--init-from: {args.init_from} does not exist")
+    if run_dir is not None:
+        check_writable_folder(run_dir, "--run-dir")
     from tumblebot.training.config import TrainConfig
     from tumblebot.training.ppo import train
 
@@ -165,6 +162,37 @@ def _train_run(args: argparse.Namespace) -> int:
     print(f"training {task.name} for {config.total_steps} steps with {config.envs} environments in {run_dir}")
     final = train(config, run_dir)
     print(f"finished: {final}; learning curve {run_dir / 'learning_curve.png'}")
+    return 0
+
+
+#: options that describe a new run: a resumed run keeps its own (RUN/config.json)
+_NEW_RUN_OPTIONS = ("envs", "seed", "checkpoint_every", "config", "physics", "motor_model", "stall_torque",
+                    "init_from", "observation")
+
+
+def _train_resume(args: argparse.Namespace) -> int:
+    """``train --resume``: continue a run, refusing the options of a new one."""
+    run_dir: Path | None = args.run_dir
+    if run_dir is None:
+        raise TumblebotError("--resume needs --run-dir RUN (the folder of the run to continue)")
+    given = [f"--{name.replace('_', '-')}" for name in _NEW_RUN_OPTIONS if getattr(args, name) is not None]
+    if given:
+        raise TumblebotError(f"{', '.join(given)}: options of a new run; a resumed run keeps its own settings "
+                             f"({run_dir / 'config.json'}); only --steps may extend it")
+    config_path = run_dir / "config.json"
+    if not config_path.is_file() or not (run_dir / "latest.zip").is_file():
+        raise TumblebotError(f"cannot resume: {run_dir} holds no run (config.json and latest.zip)")
+    try:
+        run_task = json.loads(config_path.read_text()).get("task")
+    except (OSError, json.JSONDecodeError, AttributeError) as exc:
+        raise TumblebotError(f"cannot resume: {config_path} is not a training config ({exc})") from None
+    if args.task is not None and args.task != run_task:
+        raise TumblebotError(f"--task {args.task}: {run_dir} is a {run_task} run; resuming cannot change its task")
+    check_writable_folder(run_dir, "--run-dir")
+    from tumblebot.training.ppo import train
+
+    final = train(None, run_dir, resume=True, total_steps=args.steps)
+    print(f"resumed and finished: {final}")
     return 0
 
 
@@ -280,7 +308,7 @@ def _lineage_record(run: Path, steps: int) -> list[dict[str, Any]]:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from tumblebot.sim.tasks import get_task
+    from tumblebot.sim.tasks import get_task, same_goal
     from tumblebot.training.export import export_onnx, load_run, wall_seconds_at, write_card
 
     if args.output.suffix != ".onnx":
@@ -291,10 +319,15 @@ def _export(args: argparse.Namespace) -> int:
             previous = json.loads(args.baselines_from.read_text()).get("evaluation")
         except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError) as exc:
             raise TumblebotError(f"--baselines-from {args.baselines_from}: not a readable model card ({exc})") from None
+    _check_writable(args.output, "-o")
+    _check_writable(args.output.with_suffix(".json"), "-o")
     model, config, checkpoint = load_run(args.run)
     if not args.task and config is None:
         raise TumblebotError(f"cannot tell the task of {checkpoint}: no config.json in its run folder; "
                              "pass --task")
+    if args.task and config is not None and not same_goal(config.task, get_task(args.task).name):
+        raise TumblebotError(f"--task {args.task}: {args.run} was trained for {config.task}, whose reward is "
+                             f"another; export it for {config.task} (a navigation run may serve both nav tasks)")
     task = get_task(args.task or (config.task if config else ""))
     export_onnx(model, args.output)
     extra: dict[str, object] = {"checkpoint": str(checkpoint)}
@@ -534,18 +567,7 @@ def _servo(args: argparse.Namespace) -> Any:
     return PhysicsProfile.from_arguments(args.physics, args.motor_model, args.stall_torque)
 
 
-def _check_writable(path: Path, flag: str) -> None:
-    """Refuse, before any work, an output path that cannot be written."""
-    parent = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise TumblebotError(f"{flag} {path} is a folder, not a file")
-    probe = parent
-    while not probe.exists():  # the first existing ancestor must be a writable folder
-        probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        raise TumblebotError(f"{flag} {path}: cannot write in {probe}")
-    if path.exists() and not os.access(path, os.W_OK):
-        raise TumblebotError(f"{flag} {path} is not writable")
+_check_writable = check_writable  # the name host/, sim/hardware/ and this module pass around
 
 
 def _add_mismatch_argument(p: argparse.ArgumentParser) -> None:
@@ -622,7 +644,8 @@ def _add_power_command(sub: Subcommands) -> None:
     """The ``power`` command."""
     p = sub.add_parser("power", help="power model: mass and e(w) in W/m for a design",
                        description="Print the robot's mass, the two half-tumble terms and e(w) (W/m) "
-                                   "from the thesis's power model (SPEC §3). Lengths in metres.")
+                                   "from the thesis's power model (with the squares the thesis dropped "
+                                   "restored). Lengths in metres.")
     for name, desc in (("x", "body width along the leg axis"), ("y", "side-profile dimension"),
                        ("z", "side-profile dimension"), ("l", "leg length")):
         p.add_argument(name, type=_positive_float, help=f"{desc}, m")
@@ -667,8 +690,10 @@ def _add_train_command(sub: Subcommands) -> None:
                        description="Train a PPO policy with domain randomisation over the design bounds. "
                                    "A run folder holds config.json, checkpoints, episodes.csv, TensorBoard "
                                    "logs and learning_curve.png; a stopped run continues with --resume.")
-    p.add_argument("--task", default="nav-flat", help=TASK_CHOICES)
-    p.add_argument("--steps", type=_positive_int, default=None, help="total environment steps (default 2000000)")
+    p.add_argument("--task", default=None, help=TASK_CHOICES + " (default nav-flat; a resumed run keeps its own)")
+    p.add_argument("--steps", type=_positive_int, default=None,
+                   help="total environment steps (default 2000000; with --resume, a new total for the run). PPO "
+                        "collects whole rollouts (n_steps x envs), so a run may end a little past it")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=int, default=None, help="seed (default 0)")
     p.add_argument("--checkpoint-every", type=_positive_int, default=None,

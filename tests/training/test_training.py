@@ -311,3 +311,115 @@ def test_that_curve_follows_warm_starts_back_to_the_first_run(tmp_path: Path) ->
     lonely = run("lonely", str(tmp_path / "gone" / "latest.zip"), 30)
     assert [m for _, _, m in lineage(lonely)] == [str(tmp_path / "gone" / "latest.zip")]  # said, not hidden
     assert main(["curve", str(tmp_path / "nothing"), "-o", str(out)]) == 2
+
+
+# ----------------------------------------------------------------------------- a newcomer's commands
+def _copy_run(run: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    return copy
+
+
+def test_that_resuming_a_finished_run_twice_says_so_regression_runcallback_has_no_model(
+        tiny_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = _copy_run(tiny_run, tmp_path)
+    before = (run / "latest.zip").read_bytes()
+    for _ in range(2):  # the same command twice: the second crashed with AttributeError
+        assert main(["train", "--resume", "--run-dir", str(run)]) == 0
+        assert "already has 256 steps" in capsys.readouterr().out
+    assert (run / "latest.zip").read_bytes() == before
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (["--task", "incline"], "is a nav-flat run; resuming cannot change its task"),
+    (["--envs", "3"], "--envs: options of a new run"),
+    (["--observation", "context"], "--observation: options of a new run"),
+    (["--seed", "4"], "--seed: options of a new run"),
+])
+def test_that_resume_refuses_options_of_a_new_run_regression_task_silently_ignored(
+        tiny_run: Path, tmp_path: Path, extra: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    run = _copy_run(tiny_run, tmp_path)
+    before = sorted(p.name for p in run.rglob("*"))
+    assert main(["train", "--resume", "--run-dir", str(run), *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert sorted(p.name for p in run.rglob("*")) == before
+
+
+def test_that_resume_with_the_runs_own_task_is_accepted(tiny_run: Path, tmp_path: Path) -> None:
+    run = _copy_run(tiny_run, tmp_path)
+    assert main(["train", "--resume", "--run-dir", str(run), "--task", "nav-flat"]) == 0
+
+
+def test_that_export_refuses_a_task_the_run_was_not_trained_for_regression_incline_card_on_nav_run(
+        tiny_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "incline.onnx"
+    assert main(["export", str(tiny_run), "--task", "incline", "-o", str(out), "--eval-episodes", "0"]) == 2
+    assert "was trained for nav-flat" in capsys.readouterr().err
+    assert not out.exists() and not out.with_suffix(".json").exists()
+    terrain = tmp_path / "nav-terrain.onnx"  # a navigation run may serve both navigation tasks
+    assert main(["export", str(tiny_run), "--task", "nav-terrain", "-o", str(terrain), "--eval-episodes", "0"]) == 0
+
+
+def test_that_a_card_whose_task_contradicts_its_training_config_is_refused_regression_evaluate_accepted_it(
+        tiny_policy: Path, tmp_path: Path) -> None:
+    forged = tmp_path / "incline.onnx"
+    forged.write_bytes(tiny_policy.read_bytes())
+    card = json.loads(tiny_policy.with_suffix(".json").read_text())
+    card["task"] = "incline"
+    forged.with_suffix(".json").write_text(json.dumps(card))
+    with pytest.raises(PolicyError, match="its training config says 'nav-flat'"):
+        OnnxPolicy(forged, task="incline")
+    code = main(["evaluate", "--task", "incline", "--design", XI3, "--episodes", "2", "--seed", "0",
+                 "--policy", str(forged)])
+    assert code == 2
+
+
+@pytest.mark.parametrize("command", ["export", "train"])
+def test_that_an_output_folder_that_cannot_be_written_is_one_error_regression_read_only_traceback(
+        tiny_run: Path, tmp_path: Path, command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where a folder should be\n")
+    if command == "export":
+        args = ["export", str(tiny_run), "-o", str(blocker / "p.onnx"), "--eval-episodes", "0"]
+    else:
+        args = ["train", "--steps", "64", "--run-dir", str(blocker / "run")]
+    assert main(args) == 2
+    assert "tumblebot: error" not in capsys.readouterr().out
+    if os.geteuid() != 0:  # root writes through permissions; a read-only folder is checked as another user
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o555)
+        target = ["-o", str(locked / "p.onnx")] if command == "export" else ["--run-dir", str(locked / "run")]
+        assert main([*args[:2 if command == "export" else 3], *target]) == 2
+    assert blocker.read_text() == "a file where a folder should be\n"
+
+
+def test_that_init_from_a_missing_file_is_refused_before_anything_is_printed_regression_training_banner(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["train", "--init-from", str(tmp_path / "missing.zip"), "--run-dir", str(tmp_path / "run")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "missing.zip does not exist" in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_that_a_resumed_run_says_when_it_stops_past_its_total_regression_silent_overshoot(
+        tiny_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = _copy_run(tiny_run, tmp_path)
+    assert main(["train", "--resume", "--run-dir", str(run), "--steps", "300"]) == 0
+    out = capsys.readouterr().out
+    assert "stopped at 320 steps, past the total of 300" in out and "whole rollouts of 64 steps" in out
+
+
+def test_that_tensorboard_shows_the_final_state_R_regression_only_shaped_reward(tiny_run: Path) -> None:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    logs = sorted((tiny_run / "tb").rglob("events.out.tfevents.*"))
+    assert logs
+    tags: set[str] = set()
+    for log in logs:
+        acc = EventAccumulator(str(log))
+        acc.Reload()
+        tags.update(acc.Tags()["scalars"])
+    assert "rollout/final_R_mean" in tags and "rollout/ep_rew_mean" in tags
