@@ -149,25 +149,30 @@ def _trial_analyze(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
         return 0
-    lo, hi = result["ci95"]
-    print(f"{args.dir}: {result['n']} trials, mean setpoint error {result['mean_error']:.3f} m "
-          f"(95 % CI {lo:.3f} … {hi:.3f}, sd {result['sd_error']:.3f})")
+    spread = (f"95 % CI {_interval(result['ci95'])}, sd {result['sd_error']:.3f}" if result["ci95"] is not None
+              else "no CI from one trial")
+    print(f"{args.dir}: {result['n']} trials, mean setpoint error {result['mean_error']:.3f} m ({spread})")
     for pp in result["per_point"]:
-        plo, phi = pp["ci95"]
+        interval = _interval(pp["ci95"]) if pp["ci95"] is not None else "no CI from one trial"
         print(f"  start point {pp['point'] + 1} ({pp['start'][0]:+.2f}, {pp['start'][1]:+.2f}): n={pp['n']}, "
-              f"mean {pp['mean_error']:.3f} m ({plo:.3f} … {phi:.3f})")
+              f"mean {pp['mean_error']:.3f} m ({interval})")
     e = result["e"]
     print("  robot ({:.3f}, {:.3f}, {:.3f}, {:.3f}): e(w) = ".format(*result["design"])
           + (f"{e:.2f} W/m" if e is not None else "inf (cannot tumble)"))
     if "baseline" in result:
         b = result["baseline"]
-        line = (f"baseline: n={b['n']}, mean {b['mean_error']:.3f} m (sd {b['sd_error']:.3f}); "
-                f"Welch t-test p = {b['p']:.3g}")
+        test = f"Welch t-test p = {b['p']:.3g}" if b["p"] is not None else \
+            "no t-test (each side needs two trials or more)"
+        line = f"baseline: n={b['n']}, mean {b['mean_error']:.3f} m (sd {b['sd_error']:.3f}); {test}"
         if b.get("e") is not None:
             line += f"; baseline e(w) = {b['e']:.2f} W/m"
         print(line)
     print(f"trajectories: {result['plot']}")
     return 0
+
+
+def _interval(ci: list[float] | tuple[float, float]) -> str:
+    return f"{ci[0]:.3f} … {ci[1]:.3f}"
 
 
 def _twin_world(args: argparse.Namespace) -> int:

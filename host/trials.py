@@ -324,34 +324,40 @@ def analyze(folder: Path, baseline: Path | None = None, baseline_stats: tuple[fl
     out: dict[str, Any] = {"folder": str(folder), "design": s.plan.design, "e": s.e if math.isfinite(s.e) else None,
                            "n": len(s.errors), "mean_error": float(s.errors.mean()),
                            "sd_error": float(s.errors.std(ddof=1)) if len(s.errors) > 1 else 0.0,
-                           "ci95": mean_ci95(s.errors), "per_point": []}
+                           "ci95": _ci95(s.errors), "per_point": []}
     for k in range(s.plan.points):
         e = s.errors[s.points == k]
         if len(e):
             out["per_point"].append({"point": k, "start": s.plan.start_point(k), "n": len(e),
-                                     "mean_error": float(e.mean()), "ci95": mean_ci95(e)})
+                                     "mean_error": float(e.mean()), "ci95": _ci95(e)})
     if baseline is not None and baseline_stats is not None:
         raise TrialError("give --baseline DIR or the --baseline-mean/--baseline-sd/--baseline-n numbers, not both")
     if baseline is not None:
         b = summarize(baseline)
-        test: Any = stats.ttest_ind(s.errors, b.errors, equal_var=False)
+        p = None  # a t-test needs two trials on each side
+        if len(s.errors) > 1 and len(b.errors) > 1:
+            p = float(stats.ttest_ind(s.errors, b.errors, equal_var=False).pvalue)
         out["baseline"] = {"folder": str(baseline), "design": b.plan.design, "e": b.e if math.isfinite(b.e) else None,
                            "n": len(b.errors), "mean_error": float(b.errors.mean()),
-                           "sd_error": float(b.errors.std(ddof=1)) if len(b.errors) > 1 else 0.0,
-                           "p": float(test.pvalue)}
+                           "sd_error": float(b.errors.std(ddof=1)) if len(b.errors) > 1 else 0.0, "p": p}
     elif baseline_stats is not None:
         mean, sd, n = baseline_stats
         if not (math.isfinite(mean) and math.isfinite(sd) and sd >= 0 and n >= 2):
             raise TrialError("--baseline-mean and --baseline-sd must be finite (sd >= 0) and --baseline-n >= 2")
-        if len(s.errors) < 2:
-            raise TrialError("a t-test needs at least two finished trials")
-        test = stats.ttest_ind_from_stats(s.errors.mean(), s.errors.std(ddof=1), len(s.errors), mean, sd, n,
-                                          equal_var=False)
-        out["baseline"] = {"mean_error": mean, "sd_error": sd, "n": n, "p": float(test.pvalue)}
+        p = None  # a t-test needs two trials on each side
+        if len(s.errors) > 1:
+            p = float(stats.ttest_ind_from_stats(s.errors.mean(), s.errors.std(ddof=1), len(s.errors), mean, sd, n,
+                                                 equal_var=False).pvalue)
+        out["baseline"] = {"mean_error": mean, "sd_error": sd, "n": n, "p": p}
     if plot is not None:
         _plot(s, plot)
         out["plot"] = str(plot)
     return out
+
+
+def _ci95(errors: np.ndarray) -> tuple[float, float] | None:
+    """The mean's 95 % CI, or None from a single trial (an interval needs two)."""
+    return mean_ci95(errors) if len(errors) > 1 else None
 
 
 def _plot(s: SetSummary, path: Path) -> None:

@@ -239,6 +239,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self._potential = 0.0
         self._motor_rng = np.random.default_rng(0)
         self._frames: list[np.ndarray] = []
+        self._trail: list[tuple[float, float, float]] = []  # the robot's path so far, drawn in frames
         self._substep_count = 0
 
     # ------------------------------------------------------------------ episode set-up
@@ -278,6 +279,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self._command = np.zeros(2)
         self._speed = np.full(2, self.free_speed)
         self._frames = []
+        self._trail = []
         self._substep_count = 0
         self._set_motors(self._command)
         for _ in range(self.settle_substeps):
@@ -472,15 +474,28 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
             self._frames.append(self._render_frame())
 
     def _render_frame(self) -> np.ndarray:
+        """The scene, with the floor grid, the goal, the path so far and the step and R
+        (:mod:`tumblebot.sim.render`); navigation from a fixed camera over the arena."""
+        from tumblebot.sim import render
+
         p, c = self._p, self._client
         width, height = self.render_size
-        target, _, _ = self._state()
-        view = p.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=target, distance=1.1, yaw=35.0,
-                                                   pitch=-25.0, roll=0.0, upAxisIndex=2)
+        position, velocity, _ = self._state()
+        navigation = self.task.start == "ring"
+        view = p.computeViewMatrixFromYawPitchRoll(**render.camera_pose(navigation, position))
         proj = p.computeProjectionMatrixFOV(fov=60.0, aspect=width / height, nearVal=0.02, farVal=20.0)
         _, _, rgba, _, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
                                             physicsClientId=c)
-        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        image = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        if not self._trail or self._trail[-1] != position:
+            self._trail.append(position)
+        scene = self._scene
+        assert scene is not None
+        substep = self._substep_count - self.settle_substeps
+        return render.annotate(image, render.Camera(tuple(view), tuple(proj), width, height), navigation=navigation,
+                               path=self._trail, ground=lambda x, y: scene.ground_height(x, y, 0.0),
+                               step=max(substep, 0) / self.substeps, steps=self.episode_steps,
+                               reward=self.task.state_reward(position, velocity))
 
     def render(self) -> Any:
         if self.render_mode == "rgb_array":

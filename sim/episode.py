@@ -55,7 +55,8 @@ def run_gait_episode(
     controller.check(task)
     actor = make_actor(controller.kind, controller.name, task)
     env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),
-                     render_mode="rgb_array_list" if record else None, **physics.env_kwargs())
+                     render_mode="rgb_array_list" if record else None, render_size=(480, 360),
+                     **physics.env_kwargs())
     try:
         steps: list[StepRecord] = []
 

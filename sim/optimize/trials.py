@@ -211,17 +211,31 @@ def bundled_policies(tasks: list[str], thesis: bool = False) -> dict[str, Path]:
     return out
 
 
-def format_best(best: Candidate | None, objective: Objective) -> str:
-    """The optimum as a small table, for the terminal."""
+def format_best(best: Candidate | None, objective: Objective, so_far: bool = False) -> str:
+    """The optimum as a small table, for the terminal (``so_far``: trials are still running)."""
     if best is None:
         return "no design has been evaluated on the full batch yet"
     w = best.design
-    lines = [f"best robot: trial {best.trial}, {best.batch} episodes per task",
+    lines = [f"best robot{' so far' if so_far else ''}: trial {best.trial}, {best.batch} episodes per task",
              "  x = {:.3f} m   y = {:.3f} m   z = {:.3f} m   l = {:.3f} m".format(*w.as_tuple()),
              f"  e(w) = {best.e:.3f} W/m   objective = {best.value:.5g}"]
     for task, R in best.R.items():
         lines.append(f"  {task}: mean R = {float(np.mean(R)):.3f} (weight {objective.weights[task]:g})")
+    lines.append(f"  exact design: tumblebot power {exact_design(best.design)}")
     return "\n".join(lines)
+
+
+def running_trials(study: optuna.Study) -> list[int]:
+    """Trials another worker is still running (a dead worker's are failed by its heartbeat)."""
+    from optuna.trial import TrialState
+
+    return [t.number for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))]
+
+
+def exact_design(design: Design) -> str:
+    """The design with the digits that reproduce its e(w): near the legs' limit l = r, e(w)
+    changes by whole W/m within a millimetre, so the table's rounded numbers may not."""
+    return " ".join(f"{v:.8g}" for v in design.as_tuple())
 
 
 
@@ -243,6 +257,10 @@ def format_front(study: optuna.Study) -> str:
         R = float(np.mean(np.sum([objective.weights[k] * np.asarray(v) for k, v in c.R.items()], axis=0)))
         lines.append(f"  {label:<5} {c.trial:>5}  {c.design.x:.3f}  {c.design.y:.3f}  {c.design.z:.3f}  "
                      f"{c.design.l:.3f}  {c.e:7.3f}  {R:6.3f}  {len(next(iter(c.R.values()))):>8}  {c.value:.5g}")
+    exact = [f"  ξ = {'inf' if math.isinf(xi) else f'{xi:g}'}: tumblebot power {exact_design(optima[xi].design)}"
+             for xi in objective.front if optima.get(xi) is not None]
+    if exact:
+        lines += ["exact designs:", *exact]
     return "\n".join(lines)
 
 

@@ -33,6 +33,10 @@ def _plot_objective_vs_trial(plt: Any, results: list[StudyResult]) -> Any:
         if full:
             ks, vals = zip(*full, strict=True)
             ax.step(ks, np.maximum.accumulate(vals), where="post", color="C3", label="best full-batch value so far")
+        infeasible = r.extra.get("infeasible", [])
+        if infeasible:  # no objective value to plot: marked along the bottom edge instead
+            ax.scatter(infeasible, [0.02] * len(infeasible), s=18, marker="x", color="C1", clip_on=False,
+                       transform=ax.get_xaxis_transform(), label="infeasible: legs too short to tumble (no episodes)")
         ax.axvline(r.config.startup - 0.5, color="grey", ls=":", lw=1, label="GP takes over")
         ax.set_title(f"{r.name}: {r.objective.describe()}", fontsize=9)
         ax.set_xlabel("trial")
@@ -75,10 +79,11 @@ def _plot_slices(plt: Any, reference: StudyResult, slices: dict[str, Any]) -> An
             lo = [s["objective"] - s["ci95"][0] for s in ok]
             ax.errorbar(xs, ys, yerr=lo, fmt="o-", ms=3, capsize=2)
         bad = [s["value"] for s in rows if s["objective"] is None]
-        for b in bad:
-            ax.axvline(b, color="grey", alpha=0.3, lw=4)
-        ax.axvline(slices["optimum"][PARAMETERS.index(p)], color="C3", ls="--", lw=1)
+        for k, b in enumerate(bad):
+            ax.axvline(b, color="grey", alpha=0.3, lw=4, label="cannot tumble" if k == 0 else None)
+        ax.axvline(slices["optimum"][PARAMETERS.index(p)], color="C3", ls="--", lw=1, label="the optimum")
         ax.set_xlabel(f"{p} (m)")
+        ax.legend(fontsize=7, loc="lower center")
     axes[0].set_ylabel(f"objective ({reference.name})")
     fig.suptitle("one-parameter slices through the optimum (95 % CI; grey: cannot tumble)", fontsize=9)
     return fig
@@ -93,11 +98,13 @@ def _plot_energy(plt: Any, reference: StudyResult) -> Any:
     gy, gz = np.linspace(*BOUNDS["y"], 60), np.linspace(*BOUNDS["z"], 60)
     E = np.array([[energy_per_metre(Design(bx, y, z, bl)) for y in gy] for z in gz])
     _heat(axes[0], gy, gz, E, "y (m)", "z (m)", f"e(w) at x={bx:.3f}, l={bl:.3f}")
-    axes[0].plot(by, bz, "r*", ms=12)
+    axes[0].plot(by, bz, "r*", ms=12, label="the optimum")
+    axes[0].legend(fontsize=8, loc="upper right")
     gx, gl = np.linspace(*BOUNDS["x"], 60), np.linspace(*BOUNDS["l"], 60)
     E2 = np.array([[energy_per_metre(Design(x, by, bz, l)) for x in gx] for l in gl])  # noqa: E741
     _heat(axes[1], gx, gl, E2, "x (m)", "l (m)", f"e(w) at y={by:.3f}, z={bz:.3f}")
-    axes[1].plot(bx, bl, "r*", ms=12)
+    axes[1].plot(bx, bl, "r*", ms=12, label="the optimum")
+    axes[1].legend(fontsize=8, loc="upper right")
     return fig
 
 

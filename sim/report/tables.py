@@ -168,8 +168,11 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
                             f"for ξ = {format_xi(objective.xi)} alone")
     tasks = [t for t, w in objective.weights.items() if w > 0]
     trials: list[dict[str, Any]] = []
+    infeasible: list[int] = []  # trials that ran no episodes: the legs cannot tumble the body
     for t in study.get_trials(deepcopy=False):
         rec = TrialRecord.of(t)
+        if t.state == TrialState.COMPLETE and rec.infeasible is not None:
+            infeasible.append(t.number)
         if t.state != TrialState.COMPLETE or rec.infeasible is not None:
             continue
         trials.append({"number": t.number, "value": t.value, "params": dict(t.params), "e": rec.e,
@@ -181,6 +184,8 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
         result = StudyResult(name, config, objective, tasks, trials, episodes)
         result.extra["full_batch"] = [(c.trial, c.value) for c in full]
         result.extra["promoted"] = promoted
+        result.extra["infeasible"] = infeasible
+        result.extra["infeasible"] = infeasible
         best = best_candidate(study)
         if best is not None:
             result.best_trial, result.study_value = best.trial, best.value
@@ -198,6 +203,7 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
         result.extra["full_R"] = {c.trial: np.sum([objective.weights[k] * np.asarray(v) for k, v in c.R.items()],
                                                   axis=0).tolist() for c in full}
         result.extra["promoted"] = promoted
+        result.extra["infeasible"] = infeasible
         if xi in optima:
             best = optima[xi]
             result.best_trial, result.study_value = best.trial, best.value

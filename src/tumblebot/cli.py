@@ -400,8 +400,11 @@ def _evaluate(args: argparse.Namespace) -> int:
         return 0
     lo, hi = summary["ci95"]
     print(f"{task.name}, {w}, {result.controller}, {servo.describe()}, {result.episodes} episodes, seed {args.seed}")
-    print(f"mean final-state R  {summary['mean_R']:.3f}  (95 % CI {lo:.3f} … {hi:.3f}, sd {summary['sd_R']:.3f})")
-    print(f"median final distance to the origin  {summary['median_final_distance']:.3f} m")
+    interval = f"95 % CI {lo:.3f} … {hi:.3f}, sd {summary['sd_R']:.3f}" if result.episodes > 1 else \
+        "no CI from one episode"
+    print(f"mean final-state R  {summary['mean_R']:.3f}  ({interval})")
+    where = "to the goal (the origin)" if task.start == "ring" else "from the start (the origin)"
+    print(f"median final distance {where}  {summary['median_final_distance']:.3f} m")
     e = summary["e"]
     print(f"e(w)  {e:.3f} W/m" if e is not None else "e(w)  inf (the design cannot tumble)")
     if "mean_f" in summary and summary["mean_f"] is not None:
@@ -490,6 +493,7 @@ def _optimize(args: argparse.Namespace) -> int:
         open_storage,
         open_study,
         optimize,
+        running_trials,
     )
     from tumblebot.sim.optimize.storage import redact_url
     from tumblebot.sim.runner import EpisodeRunner
@@ -526,7 +530,13 @@ def _optimize(args: argparse.Namespace) -> int:
                 runner.close()
         bar.close()
     print(f"{result.done} trials in study {name!r} ({result.episodes} episodes this run)")
-    print(format_front(study) if objective.front else format_best(result.best, objective))
+    running = running_trials(study)
+    if running:
+        listed = ", ".join(str(n) for n in running[:10]) + (", …" if len(running) > 10 else "")
+        print(f"{len(running)} trial{'s' if len(running) > 1 else ''} still running in other workers ({listed}): "
+              "the result below is the best so far, not yet the study's; run the same command (or report) "
+              "when they finish")
+    print(format_front(study) if objective.front else format_best(result.best, objective, so_far=bool(running)))
     if args.json is not None:
         from tumblebot.sim.optimize import study_summary, to_json
 
@@ -937,6 +947,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: which extra installs each third-party package a command may import (pyproject.toml)
+EXTRA_OF_MODULE = {
+    "numpy": "sim", "scipy": "sim", "pybullet": "sim", "gymnasium": "sim", "PIL": "sim", "matplotlib": "sim",
+    "tqdm": "sim", "onnxruntime": "sim", "optuna": "opt", "psycopg": "opt", "sqlalchemy": "opt",
+    "optuna_dashboard": "opt", "torch": "train", "stable_baselines3": "train", "tensorboard": "train",
+    "onnx": "train", "onnxscript": "train", "build123d": "build", "ezdxf": "build", "trimesh": "build",
+    "motioncapture": "host", "mcap": "host", "foxglove": "host", "serial": "agent",
+}
+
+
+def missing_extra(exc: ImportError) -> str | None:
+    """One line naming the extra that installs a missing package, or None if it is none of ours
+    (a broken install, a bug: those keep their traceback)."""
+    name = (exc.name or "").split(".")[0]
+    extra = EXTRA_OF_MODULE.get(name)
+    if extra is None:
+        return None
+    return (f"this command needs the '{extra}' extra ({name} is not installed): "
+            f"pip install 'tumblebot[{extra}]' (a Raspberry Pi needs only tumblebot-agent, from the 'agent' extra)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     interrupts.hold()  # Ctrl-C while starting up is recorded, not raised mid-import (tumblebot.interrupts)
     try:
@@ -969,7 +1000,11 @@ def _dispatch(argv: Sequence[str] | None) -> int:
         if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
             print("tumblebot: interrupted", file=sys.stderr)
             return 130
-        raise
+        missing = missing_extra(exc)
+        if missing is None:
+            raise
+        print(f"tumblebot: error: {missing}", file=sys.stderr)
+        return 2
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0

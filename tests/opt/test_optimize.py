@@ -581,3 +581,33 @@ def test_that_the_report_says_whether_the_thesis_optimum_is_still_the_robot_to_b
     assert alone.returncode == 0, alone.stderr
     text = (tmp_path / "rep2" / "report.md").read_text()
     assert "Not answered: none of these studies was optimised under lab" in text
+
+
+def test_that_a_worker_finishing_first_says_trials_are_still_running_regression_best_robot_trial_2(
+        tmp_path: Path) -> None:
+    """With two workers on one study, the first to finish printed "best robot: trial 2" while
+    the real optimum was still running elsewhere, and nothing said so."""
+    db = tmp_path / "s.db"
+    args = ("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--trials", "4", "--batch", "4",
+            "--recipe", "standard", "--storage", f"sqlite:///{db}", "--study", "s", "--seed", "0", "--quiet")
+    first = tb(*args)
+    assert first.returncode == 0, first.stderr
+    assert "still running" not in first.stdout and "best robot: trial" in first.stdout
+    elsewhere = load(db, "s").ask()  # another worker's trial, still running
+    again = tb(*args)
+    assert again.returncode == 0, again.stderr
+    assert f"1 trial still running in other workers ({elsewhere.number})" in again.stdout
+    assert "best robot so far: trial" in again.stdout
+
+
+def test_that_the_printed_optimum_reproduces_its_e_regression_rounded_design_gave_another_e(tmp_path: Path) -> None:
+    """optimize printed e = 3.591 for an optimum whose rounded numbers give 3.586 in power."""
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--trials", "3", "--batch", "4",
+             "--recipe", "standard", "--storage", f"sqlite:///{tmp_path / 'e.db'}", "--study", "e", "--seed", "0",
+             "--quiet")
+    assert run.returncode == 0, run.stderr
+    printed_e = next(ln for ln in run.stdout.splitlines() if ln.strip().startswith("e(w) ="))
+    exact = next(ln for ln in run.stdout.splitlines() if "exact design: tumblebot power" in ln)
+    power = tb("power", *exact.split("tumblebot power", 1)[1].split(), "--json")
+    assert power.returncode == 0, power.stderr
+    assert f"e(w) = {json.loads(power.stdout)['e']:.3f} W/m" in printed_e

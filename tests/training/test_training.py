@@ -413,7 +413,7 @@ def test_that_a_resumed_run_says_when_it_stops_past_its_total_regression_silent_
 
 
 def test_that_tensorboard_shows_the_final_state_R_regression_only_shaped_reward(tiny_run: Path) -> None:
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # type: ignore[import-untyped]
 
     logs = sorted((tiny_run / "tb").rglob("events.out.tfevents.*"))
     assert logs
