@@ -9,7 +9,7 @@
                                            extra query keys go to the library as options
 ``motioncapture://mock?body=B&rigid_bodies=B(x,y,z,qw,qx,qy,qz)``
                                            that library's own mock source (static bodies)
-``replay:///path/trial-0003.mcap``         the poses of a recorded trial, at their pace
+``replay:///path/trial-0003.mcap``         the poses of a recorded trial, as recorded
 ``mock://?x=0.4&y=0.2&yaw=0``              a fixed pose at 100 Hz, for dry runs
 =========================================  ==============================================
 
@@ -292,7 +292,17 @@ class MockSource(ThreadedSource):
 
 
 class ReplaySource(ThreadedSource):
-    """The poses of a recorded trial (its MCAP log), at the pace they were recorded."""
+    """The poses of a recorded trial (its MCAP log), at the pace they were recorded.
+
+    A log starts when its trial started, after the host had seen the robot sit at the start
+    point. So the replay first holds the recording's first pose (the robot waiting at the
+    start, 100 Hz, fresh times) until :meth:`trial_starts`, which the trial set calls as its
+    trial begins; only then does the recording play, at its pace, so the host's steps see the
+    poses they saw when it was recorded. After the last recorded pose the robot stays where
+    it ended for ``HOLD_AFTER`` s, then the source falls silent (tracking lost)."""
+
+    HOLD_PERIOD = 0.01  #: s between held poses (the start, and the end)
+    HOLD_AFTER = 2.0  #: s the last pose is held after the recording ends
 
     def __init__(self, url: str, path: Path, speed: float) -> None:
         super().__init__(url)
@@ -305,13 +315,34 @@ class ReplaySource(ThreadedSource):
         self.poses = [m for m in log.messages if m.topic == "/pose"]
         if not self.poses:
             raise MocapError(f"{url}: {path} holds no poses")
-        self.speed, self.index = speed, 0
-        self.start_wall = time.monotonic()
+        self.speed, self.index, self.seq = speed, 0, 0
+        self._playing = threading.Event()
+        self.start_wall = 0.0
         self.start_log = self.poses[0].log_time
+        self.ended: float | None = None
         self.start()
 
+    def trial_starts(self) -> None:
+        """The trial begins: play the recording from its first pose, from now."""
+        if not self._playing.is_set():
+            self.start_wall = time.monotonic()
+            self._playing.set()
+
+    def _held(self, message: Any) -> Pose:
+        time.sleep(self.HOLD_PERIOD)
+        self.seq += 1
+        d = message.data
+        p, q = d["p"], d["q"]
+        return Pose(time.monotonic(), (p[0], p[1], p[2]), (q[0], q[1], q[2], q[3]), None, self.seq)
+
     def next_pose(self) -> Pose | None:
+        if not self._playing.is_set():
+            return self._held(self.poses[0])  # the robot at the start, waiting for the trial
         if self.index >= len(self.poses):
+            if self.ended is None:
+                self.ended = time.monotonic()
+            if time.monotonic() - self.ended < self.HOLD_AFTER:
+                return self._held(self.poses[-1])
             time.sleep(0.05)
             return None  # the recording is over: the pose goes stale, like lost tracking
         m = self.poses[self.index]
@@ -320,9 +351,10 @@ class ReplaySource(ThreadedSource):
         if delay > 0:
             time.sleep(delay)
         self.index += 1
+        self.seq += 1
         d = m.data
         p, q = d["p"], d["q"]
-        return Pose(time.monotonic(), (p[0], p[1], p[2]), (q[0], q[1], q[2], q[3]), d.get("source_time"), self.index)
+        return Pose(time.monotonic(), (p[0], p[1], p[2]), (q[0], q[1], q[2], q[3]), d.get("source_time"), self.seq)
 
 
 def _float(query: dict[str, str], key: str, default: float, url: str) -> float:

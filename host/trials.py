@@ -197,6 +197,9 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
                                   mirror=mirror)
             result: TrialResult | None = None
             background = BackgroundLog(log)  # the controller never waits for the disk
+            starts = getattr(controller.source, "trial_starts", None)
+            if starts is not None:  # a recorded trial (replay://) plays from here
+                starts()
             try:
                 result = controller.run_trial(background, on_status=lambda n, pose, d: out(
                     f"  step {n:2d}/{controller.config.steps}: {d:.2f} m to the setpoint"))

@@ -96,3 +96,39 @@ def test_that_twin_run_refuses_a_bad_live_view_address_before_starting(tmp_path:
     run = tb("twin", "run", "--out", str(tmp_path / "t"), "--foxglove", "localhost:", timeout=60)
     assert run.returncode == 2 and "expected PORT or HOST:PORT" in run.stderr, run.stderr
     assert not (tmp_path / "t").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.hil
+def test_that_a_replayed_trial_reproduces_the_recording_regression_start_wait_ate_the_recording(
+        tmp_path: Path, agent: tuple[str, Path]) -> None:
+    """replay:// of a recorded trial aborted at step 19 of 20 with mocap_lost: the host's 1 s
+    wait at the start point used up part of the recording. The replay holds the start until
+    the trial begins, so every step sees the pose it saw when recorded."""
+    from tests.calibration_logs import write_set
+    from tumblebot.host.triallog import read_trial
+    from tumblebot.sim.physics import THESIS
+
+    recorded = write_set(tmp_path / "recorded", THESIS, 1)
+    log = read_trial(recorded / "trial-0000.mcap")
+    poses = [(m.log_time, m.data["p"]) for m in log.topic("/pose")]
+    t0 = poses[0][0]
+    address, key = agent
+    out = tmp_path / "replayed"
+    run = tb("trial", "run", "--out", str(out), "--mocap", f"replay://{recorded / 'trial-0000.mcap'}",
+             "--agent", address, "--key", str(key), "--design", "0.292,0.129,0.098,0.136", "--setpoint", "0,0",
+             "--heading", "0", "--radius", "1", "--points", "1", "--per-point", "1", "--gait", "excite", timeout=180)
+    assert run.returncode == 0, run.stdout + run.stderr
+    index = load_index(out)
+    assert len(index["trials"]) == 1 and not index["aborted"], index
+    final = load_index(recorded)["trials"][0]["final_position"]
+    assert index["trials"][0]["final_position"][:2] == pytest.approx(final[:2], abs=0.01)
+    replayed = read_trial(out / "trial-0000.mcap")
+    start = next(m.data["t"] for m in replayed.topic("/pose"))  # host clock, as the decisions' "t"
+    decisions = list(replayed.topic("/decision"))
+    assert len(decisions) == 20
+    for decision in decisions:
+        when = decision.data["t"] - start  # seconds into the trial, as replayed
+        near = min(poses, key=lambda tp: abs(tp[0] - t0 - when))[1]
+        seen = decision.data["observation"][:2]
+        assert seen == pytest.approx(near[:2], abs=0.03), (decision.data["step"], seen, near)
