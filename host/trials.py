@@ -222,19 +222,23 @@ def run_trial_set(folder: Path, plan: TrialPlan, controller: TrialRunner, placer
                 write_json_atomic(folder / "index.json", index)
                 out(f"  done: final error {result.final_error:.3f} m")
                 break
-            out(f"  trial aborted ({result.status}): {result.reason}; the robot was stopped. The trial will be redone.")
-            if result.status == "agent_lost":
-                _wait_for_agent(controller, agent_wait, out)
-            elif result.status == "taken_over":
-                out("another host took control of the robot: waiting for it to give control back (it does as it "
-                    "ends)")
-                check_link(controller, agent_wait)
-                out("control is back; continuing")
-            elif result.status in LINK_FAULTS:
-                out("waiting for the agent's serial link to the Arduino (check the USB cable and the servo supply)")
-                check_link(controller, agent_wait)
-                out("the Arduino answers again; continuing")
+            _recover(result, controller, agent_wait, out)
     return index
+
+
+def _recover(result: TrialResult, controller: TrialRunner, agent_wait: float, out: Callable[[str], None]) -> None:
+    """After an aborted trial: say why, and wait for what it needs before it is redone."""
+    out(f"  trial aborted ({result.status}): {result.reason}; the robot was stopped. The trial will be redone.")
+    if result.status == "agent_lost":
+        _wait_for_agent(controller, agent_wait, out)
+    elif result.status == "taken_over":
+        out("another host took control of the robot: waiting for it to give control back (it does as it ends)")
+        check_link(controller, agent_wait)
+        out("control is back; continuing")
+    elif result.status in LINK_FAULTS:
+        out("waiting for the agent's serial link to the Arduino (check the USB cable and the servo supply)")
+        check_link(controller, agent_wait)
+        out("the Arduino answers again; continuing")
 
 
 LINK_CHECK_WAIT = 15.0  #: s a trial set waits at its start for the agent to report a live serial link
