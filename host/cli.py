@@ -597,8 +597,11 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     t.add_argument("--allow-servo-mismatch", action="store_true",
                    help="run a policy under a servo other than the one it was trained under")
     t.set_defaults(func=_twin_run)
-    c = wsub.add_parser("check", help="test a twin trial set for consistency with pure simulation")
-    c.add_argument("dir", type=Path)
+    c = wsub.add_parser("check", help="test a twin trial set for consistency with pure simulation",
+                        description="Compare each twin trial's final setpoint error with simulated episodes from "
+                                    "the same start and heading (rank p-values, combined with Fisher's method): "
+                                    "NOT CONSISTENT when the twin's errors are too large at alpha = 0.01.")
+    c.add_argument("dir", type=Path, help="the trial-set folder a twin run wrote (twin run --out)")
     c.add_argument("--sim-episodes", type=positive_int, default=16, help="simulated episodes per twin trial (16)")
     c.set_defaults(func=_twin_check)
     w = wsub.add_parser("world", help="the world process alone (started by twin run)")

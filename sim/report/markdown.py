@@ -62,7 +62,9 @@ def render_markdown(results: list[StudyResult], reference: StudyResult, task: st
                    f"{_fmt(R)} | {_fmt(ci[0]) + ' … ' + _fmt(ci[1]) if ci else 'n/a'} | {_fmt(row['e'], 2)} | {p} | "
                    f"{ths} |")
     out += ["", f"## Table 3.2 equivalent: ±{PERTURBATION} m perturbations of the `{reference.name}` optimum", "",
-            "\\* = outside the optimisation bounds (evaluated anyway).", "",
+            "\\* = outside the optimisation bounds (evaluated anyway). The thesis columns are the thesis's own "
+            "Table 3.2: the same perturbations of *its* ξ = 0 robot (0.293, 0.117, 0.158, 0.218), not of this "
+            "optimum; compare the direction and size of each change, not the values.", "",
             "| change | x | y | z | l | R | p vs unperturbed | thesis R | thesis p | note |",
             "|---|---|---|---|---|---|---|---|---|---|"]
     for row in data["table32"]:

@@ -791,11 +791,14 @@ def _add_export_command(sub: Subcommands) -> None:
                                    "scripted gaits and a random policy and record that in the card.")
     p.add_argument("run", type=Path, help="run folder (uses RUN/latest.zip) or a checkpoint .zip")
     p.add_argument("-o", "--output", type=Path, required=True, help="output .onnx file, e.g. policies/nav-flat.onnx")
-    p.add_argument("--task", default=None, help="task (default: from the run's config.json)")
-    p.add_argument("--eval-episodes", type=int, default=240, help="episodes per design for the card (0: skip)")
-    p.add_argument("--seed", type=int, default=0, help="evaluation seed")
-    p.add_argument("--workers", type=_positive_int, default=1, help="evaluation worker processes")
-    p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits")
+    p.add_argument("--task", default=None, help="task (default: the run's, from its config.json; a navigation "
+                                                "run may be exported for either navigation task)")
+    p.add_argument("--eval-episodes", type=_non_negative_int, default=240,
+                   help="episodes per design for the card's evaluation (default 240; 0: skip it)")
+    p.add_argument("--seed", type=int, default=0, help="evaluation seed (default 0)")
+    p.add_argument("--workers", type=_positive_int, default=1, help="evaluation worker processes (default 1)")
+    p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits "
+                                                "(default none)")
     p.add_argument("--baselines-from", type=Path, default=None, metavar="CARD.json",
                    help="reuse the gait baselines of an earlier card of the same task, episodes and seed (checked: "
                         "its best fixed gait is re-run and must give the recorded mean exactly)")
@@ -831,8 +834,11 @@ def _add_optimize_command(sub: Subcommands) -> None:
     p = sub.add_parser(
         "optimize", help="Bayesian optimisation of the design (x, y, z, l) for weighted tasks",
         description="Maximise the thesis objective, the batch mean of sum_i lambda_i R_i/(e(w)+1)^xi, over the "
-                    "design bounds with each task's bundled ONNX policy. Optuna: random start-up designs, then its "
-                    "GP sampler with log expected improvement. Studies live in a database (SQLite file by "
+                    "design bounds with each task's bundled ONNX policy. Every recipe starts with random designs; "
+                    "then the standard and thesis recipes use Optuna's GP sampler (log expected improvement) on "
+                    "the objective, while the efficient recipe and every --front study fit a GP to R alone with "
+                    "e(w) exact, screen designs on a few episodes and promote the promising ones to the full "
+                    "batch. Studies live in a database (SQLite file by "
                     "default); running the same command again resumes a study, and several processes pointed at "
                     "one study cooperate on it. Ctrl-C stops cleanly.")
     p.add_argument("--tasks", required=True, help="weighted tasks, e.g. nav-flat=1,incline=0.5 (a bare name weighs 1)")
