@@ -91,3 +91,21 @@ def test_that_one_trial_gets_no_confidence_interval_regression_ci_of_a_single_va
     assert "(0." not in run.stdout.split("mean setpoint error", 1)[1].split("\n", 1)[0].replace("(no CI", "")
     result = json.loads(tb("trial", "analyze", str(folder), "--json").stdout)
     assert result["ci95"] is None and result["per_point"][0]["ci95"] is None
+
+
+@pytest.mark.parametrize(("argv", "shown"), [
+    (["export", "--help"], ["(default 240; 0: skip it)", "(default 0)", "(default 1)"]),
+    (["twin", "check", "--help"], ["the trial-set folder a twin run wrote"]),
+    (["optimize", "--help"], ["efficient recipe", "standard and thesis recipes"]),
+    (["train", "--help"], ["thesis,context,memory,residual,dual"]),
+])
+def test_that_help_pages_show_defaults_choices_and_argument_help_regression_silent_help(
+        argv: list[str], shown: list[str]) -> None:
+    import os
+
+    run = subprocess.run([sys.executable, "-m", "tumblebot.cli", *argv], capture_output=True, text=True,
+                         timeout=120, check=False, env={**os.environ, "COLUMNS": "400"})
+    assert run.returncode == 0, run.stderr
+    text = " ".join(run.stdout.split())
+    for words in shown:
+        assert words in text, (words, text[:3000])
