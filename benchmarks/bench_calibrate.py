@@ -20,7 +20,13 @@ and the host, the agent and the calibration are not told it.
    end against 8 replays of its logged commands. (Replaying a closed-loop trial open loop
    is not the same experiment: under the true profile itself its distances differ,
    p = 0.006 in one measured world.)
-3. **Cost**: the calibration's wall time on this machine.
+3. **Decision** (``--decision-trials N``): ``optimize --physics FITTED`` and ``optimize
+   --physics TRUE`` at the same budget (nav-flat, ξ = 3, the efficient recipe, ``goto``
+   driving the episodes: the bundled policies were trained under ``thesis`` only), then both
+   optima evaluated under the true profile on the same 480 episodes; the fitted profile's
+   optimum must tie the true one's (paired t-test on the per-episode objective, p > 0.05) or
+   beat it.
+4. **Cost**: the calibration's wall time on this machine.
 
 It takes about 15 minutes per profile on 2 cores (the twin runs in real time). The
 figures, with date and machine, go into ``docs/physics.md``.
@@ -134,6 +140,51 @@ def open_loop(holdout: Path, fitted: PhysicsProfile) -> tuple[float, float]:
     return q_fit, q_thesis
 
 
+def optimum(folder: Path, profile: Path, study: str, trials: int) -> tuple[float, ...]:
+    """The design ``optimize --physics PROFILE`` finds (resumed if the study exists)."""
+    summary = folder / f"{study}.json"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--recipe", "efficient",
+             "--trials", str(trials), "--batch", "48", "--physics", str(profile), "--seed", "0", "--workers", "2",
+             "--storage", f"sqlite:///{folder / 'decision.db'}", "--study", study, "--quiet", "--json", str(summary))
+    if run.returncode != 0:
+        raise SystemExit(f"optimize failed:\n{run.stderr[-3000:]}")
+    best = json.loads(summary.read_text())["best"]
+    return tuple(float(best["design"][k]) for k in ("x", "y", "z", "l"))
+
+
+def objectives(design: tuple[float, ...], truth: Path, folder: Path, episodes: int) -> np.ndarray:
+    """Per-episode objective R/(e+1)^3 of ``design`` under the true profile (seed 7, the same
+    episodes for every design)."""
+    from tumblebot.sim.design import Design
+    from tumblebot.sim.power import energy_per_metre
+
+    csv = folder / f"decision-{'-'.join(f'{v:.5f}' for v in design)}.csv"
+    if not csv.is_file():
+        run = tb("evaluate", "--task", "nav-flat", "--design", ",".join(f"{v:.8g}" for v in design), "--gait", "goto",
+                 "--physics", str(truth), "--episodes", str(episodes), "--seed", "7", "--workers", "2",
+                 "--csv", str(csv))
+        if run.returncode != 0:
+            raise SystemExit(f"evaluate failed:\n{run.stderr[-3000:]}")
+    R = np.loadtxt(csv, delimiter=",", skiprows=1, usecols=1)
+    x, y, z, leg = design
+    return np.asarray(R / (energy_per_metre(Design(x, y, z, leg)) + 1.0) ** 3)
+
+
+def decision(folder: Path, world: Path, trials: int, episodes: int = 480) -> float:
+    """Optimise under the fitted and under the true profile; both optima on the same episodes under the truth."""
+    from scipy.stats import ttest_rel
+
+    fitted_w = optimum(folder, folder / "fitted.json", "fitted", trials)
+    true_w = optimum(folder, world, "true", trials)
+    f_fit, f_true = objectives(fitted_w, world, folder, episodes), objectives(true_w, world, folder, episodes)
+    p = 1.0 if np.allclose(f_fit, f_true) else float(ttest_rel(f_fit, f_true).pvalue)
+    verdict = "tie" if p > 0.05 else ("fitted better" if f_fit.mean() > f_true.mean() else "FITTED WORSE")
+    print(f"  decision ({trials} trials each, {episodes} paired episodes under the true profile): optimum under the "
+          f"fitted profile {tuple(round(v, 3) for v in fitted_w)} objective {f_fit.mean():.5f}; under the true "
+          f"profile {tuple(round(v, 3) for v in true_w)} {f_true.mean():.5f}; paired p = {p:.3g} ({verdict})")
+    return p if f_fit.mean() <= f_true.mean() else 1.0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=15, help="identification trials per hidden world (15)")
@@ -142,6 +193,8 @@ def main() -> int:
                     help="held-out identification runs per hidden world, replayed open loop (5)")
     ap.add_argument("--out", type=Path, default=Path("runs/bench-calibrate"), help="where the trial sets go")
     ap.add_argument("--only", type=int, help="run only this hidden world (0, 1, 2)")
+    ap.add_argument("--decision-trials", type=int, default=40,
+                    help="trials of each optimisation in the decision stage (40; 0 skips it)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"bench_calibrate {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
@@ -185,14 +238,16 @@ def main() -> int:
         if args.holdout_excite > 0:  # open loop in the twin too, so a replay is the same experiment
             twin(folder / "holdout-excite", world, "excite", args.holdout_excite, seed=200 + k)
             row["q_fitted"], row["q_thesis"] = open_loop(folder / "holdout-excite", fitted)
+        if args.decision_trials > 0:
+            row["p_decision"] = decision(folder, world, args.decision_trials)
         rows.append(row)
-    print("\n                                         closed loop          open loop")
-    print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis)")
+    print("\n                                         closed loop          open loop            decision")
+    print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis)  p(fitted vs true)")
     for r in rows:
         nan = float("nan")
         print(f"{r['world']:21s} {'yes' if r['recovery'] else 'NO':8s} {r['minutes']:7.1f}  "
               f"{r.get('p_fitted', nan):9.3f} {r.get('p_thesis', nan):9.3f}  {r.get('q_fitted', nan):9.3f} "
-              f"{r.get('q_thesis', nan):9.3f}")
+              f"{r.get('q_thesis', nan):9.3f}  {r.get('p_decision', nan):9.3g}")
     return 0 if all(r["recovery"] for r in rows) else 1
 
 

@@ -121,11 +121,17 @@ def test_that_the_mock_and_replay_sources_produce_poses(tmp_path: Path) -> None:
                     t=1000.0 + i * 0.01)
     src = open_source(f"replay://{log}?speed=2")
     try:
+        waiting = src.poll(0.5)  # before the trial starts: the robot held at the recording's start
+        assert waiting and all(p.position[0] == 0.0 for p in waiting)
+        src.trial_starts()  # type: ignore[attr-defined]
         got: list[Pose] = []
         deadline = time.monotonic() + 3
-        while len(got) < 10 and time.monotonic() < deadline:
+        while time.monotonic() < deadline and not (got and got[-1].position[0] == pytest.approx(0.09)):
             got += src.poll(0.1)
-        assert [p.position[0] for p in got] == pytest.approx([i * 0.01 for i in range(10)])
+        played = [p.position[0] for p in got]
+        start = max(i for i, x in enumerate(played) if x == 0.0)  # held start poses queued before, then the recording
+        assert played[start:start + 10] == pytest.approx([i * 0.01 for i in range(10)])
+        assert all(b.t >= a.t for a, b in zip(got, got[1:], strict=False))
     finally:
         src.close()
 
