@@ -294,7 +294,7 @@ def test_that_a_key_holder_cannot_make_the_agent_write_more_serial_frames_than_d
         settled = [t for t, _ in written if t >= start + 0.5]  # past the first half second
         return len(settled) / (seconds - 0.5)
 
-    agent.link.info = object()  # INFO known: no GET_INFO
+    monkeypatch.setattr(agent.link, "info", object())  # INFO known: no GET_INFO
     idle = rate(3.0, attack=False)
     attacked = rate(5.0, attack=True)
     assert 20 <= idle <= 22, idle
