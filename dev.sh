@@ -85,6 +85,8 @@ case "$cmd" in
             echo "dev.sh: mypy (strict: the package, then tests, hil_tests, benchmarks and reports)"
             "$VENV/bin/mypy"
             "$VENV/bin/mypy" tests hil_tests benchmarks reports
+            echo "dev.sh: import contracts (lint-imports: no circles, the arrows between packages)"
+            "$VENV/bin/lint-imports"
             echo "dev.sh: pytest (fast: not slow, not hil)"
             exec "$VENV/bin/python" -m pytest -m "not slow and not hil" "$@"
         fi
@@ -104,6 +106,8 @@ case "$cmd" in
         echo "dev.sh: mypy (strict: the package, then tests, hil_tests, benchmarks and reports)"
         "$VENV/bin/mypy"
         "$VENV/bin/mypy" tests hil_tests benchmarks reports
+        echo "dev.sh: import contracts (lint-imports: no circles, the arrows between packages)"
+        "$VENV/bin/lint-imports"
         echo "dev.sh: pytest"
         # pytest exits 5 when it collects nothing; that is a failure here too.
         "$VENV/bin/python" -m pytest "$@"

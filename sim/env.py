@@ -46,8 +46,8 @@ from gymnasium import spaces
 from tumblebot.sim import constants as C
 from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.observation import OBS_LAYOUT
 from tumblebot.sim.pb import pybullet
-from tumblebot.sim.policy import OBS_LAYOUT
 from tumblebot.sim.randomization import Randomization
 from tumblebot.sim.robot import RobotModel, build_robot
 from tumblebot.sim.tasks import TaskSpec, get_task

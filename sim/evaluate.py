@@ -12,71 +12,19 @@ import math
 import time
 from dataclasses import dataclass, field
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tumblebot.sim.controllers import Controller, Servo, episode_seed
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.gaits import get_gait
-from tumblebot.sim.goto import check_navigation_task
-from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.runner import EpisodeRunner
 from tumblebot.sim.stats import mean_ci95
 from tumblebot.sim.tasks import get_task
 
-
-@dataclass(frozen=True)
-class Controller:
-    """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
-    (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
-    controller of :mod:`tumblebot.sim.goto`). Picklable, so workers can rebuild it."""
-
-    kind: str
-    name: str
-    #: use a policy under a servo other than the one its model card says it was trained under
-    allow_servo_mismatch: bool = False
-
-    @classmethod
-    def of_gait(cls, name: str) -> Controller:
-        """``--gait NAME``: a scripted gait, or ``goto``."""
-        return cls("goto", "goto") if name == "goto" else cls("gait", name)
-
-    def label(self) -> str:
-        if self.kind == "onnx":
-            return Path(self.name).name
-        return "goto" if self.kind == "goto" else f"gait:{self.name}"
-
-    def check(self, task: str, servo: Servo | None = None) -> None:
-        """Fail fast, in this process, with one clear error. A policy is refused under a
-        servo other than the one it was trained under (its model card's ``servo``; cards
-        without one were trained under the default), unless ``allow_servo_mismatch``."""
-        if self.kind == "onnx":
-            from tumblebot.sim.policy import OnnxPolicy, PolicyError
-
-            policy = OnnxPolicy(Path(self.name), task=get_task(task).name)
-            trained = Servo.from_card(policy.card.get("servo") or {})
-            if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
-                raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
-                                  f"not the {servo.describe()}: train one under that world (tumblebot train "
-                                  "--physics, --motor-model/--stall-torque), or pass --allow-servo-mismatch to use "
-                                  "it anyway")
-        elif self.kind == "goto":
-            check_navigation_task(task)
-        elif self.kind == "gait":
-            get_gait(self.name)
-        else:
-            raise SimError(f"unknown controller kind {self.kind!r}")
-
-
-#: The world an evaluation runs in: a physics profile (the name says what results depend on).
-Servo = PhysicsProfile
-
-
-def episode_seed(seed: int, index: int) -> int:
-    """The reset seed of episode ``index`` in an evaluation seeded ``seed``."""
-    return int(np.random.SeedSequence([seed, index]).generate_state(1, dtype=np.uint32)[0])
+__all__ = ["Controller", "EvalResult", "Servo", "episode_seed", "evaluate"]
 
 
 @dataclass
@@ -145,8 +93,6 @@ def evaluate(task: str, design: Design, controller: Controller, episodes: int, s
         raise SimError(f"workers={workers} must be at least 1")
     if seed < 0:
         raise SimError(f"seed={seed} must be a non-negative integer")
-    from tumblebot.sim.runner import EpisodeRunner
-
     start = time.perf_counter()
     with EpisodeRunner({spec.name: controller}, workers=workers, servo=servo) as runner:  # checks the controller
         bar = None

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.policy import POSITION, QUATERNION
+from tumblebot.sim.observation import POSITION, QUATERNION
 
 Action = tuple[int, int]
 

@@ -9,7 +9,7 @@ One typed, validated JSON file with flat keys in SI units::
      "latency": [0.0, 0.04], "motor_speed_sigma": 0.8}
 
 ``thesis`` is the built-in profile (the thesis's servo constants, :data:`THESIS`); a servo
-of the catalogue (``sim/hardware/servos.json``) gives the servo keys
+of the catalogue (``sim/servos.json``) gives the servo keys
 (:meth:`PhysicsProfile.with_servo`). A profile is identified by its :meth:`digest` (its
 values, not its name), which studies, model cards and twin records store next to it.
 """
@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.sim import constants as C
+from tumblebot.sim.catalogue import servo
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.hardware.catalogue import servo
 from tumblebot.sim.randomization import Randomization
 
 MAX_FREE_SPEED = 50.0  #: rad/s; beyond any hobby servo's output shaft

@@ -5,27 +5,8 @@ Every inference outside training (evaluation, optimisation, the host) goes throu
 ``POLICY.onnx``) says which task and observation layout the network expects, and holds
 the SHA-256 of the ONNX file; loading checks all three.
 
-Five observation layouts exist (:data:`LAYOUTS`):
-
-* ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
-* ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
-  the design it built (``x, y, z, l``, m), the steps left in the episode as a fraction
-  of the episode (1 before the first step), and the previous step's 9 thesis numbers
-  (the current ones again before the first step). A policy with this input is told the
-  body it drives, how much time is left, and what its last action did.
-* ``memory``: ``context``, then ``goto``'s memory of the episode (:data:`MEMORY_FIELDS`,
-  :class:`tumblebot.sim.goto.MotionMemory`): the running estimates of a drive step's
-  length (m) and of each spin's yaw change (rad), learnt from every step so far, with the
-  action of each step read from the command the next observation carries.
-* ``residual``: ``memory``, then the action ``goto`` itself would take now
-  (:data:`RESIDUAL_FIELDS`, each leg's command 0/1/2; :class:`tumblebot.sim.goto.GotoController`
-  with the settings in :data:`RESIDUAL_GOTO`, told every step the action actually taken).
-  A policy with this input starts from the hand-written controller's choice and learns
-  where to deviate from it (residual policy learning).
-* ``dual``: ``residual``, then the action of a second ``goto`` with the settings in
-  :data:`DUAL_GOTO` (:data:`DUAL_FIELDS`), which suit some bodies better and others worse;
-  a policy with this input, which also knows the design, can follow whichever suits the
-  body it drives (:mod:`tumblebot.training.choice`).
+The observation layouts are declared in :mod:`tumblebot.sim.observation` (and re-exported
+here for the callers that load policies).
 
 Callers always hand :meth:`OnnxPolicy.act` the thesis observation; the policy builds the
 rest itself (:class:`ObservationContext`), given the design at :meth:`OnnxPolicy.reset`,
@@ -43,32 +24,28 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.goto import GotoConfig, GotoController, MotionMemory, heading
+from tumblebot.sim.observation import (
+    ACTION_LAYOUT,
+    COMMAND,
+    CONTEXT_FIELDS,
+    DUAL_FIELDS,
+    DUAL_GOTO,
+    EPISODE_STEPS,
+    LAYOUTS,
+    MEMORY_FIELDS,
+    OBS_LAYOUT,
+    POSITION,
+    QUATERNION,
+    RESIDUAL_FIELDS,
+    RESIDUAL_GOTO,
+)
 from tumblebot.sim.tasks import same_goal
 
-#: The thesis observation, the environment's (``TumblerEnv`` takes it from here; this
-#: module needs no PyBullet): position, orientation quaternion, last command.
-OBS_LAYOUT: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
-POSITION, QUATERNION, COMMAND = slice(0, 3), slice(3, 7), slice(7, 9)  #: where each part lies in it
-CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
-                                   *(f"prev_{name}" for name in OBS_LAYOUT))
-MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
-RESIDUAL_FIELDS: tuple[str, ...] = ("goto_right", "goto_left")
-DUAL_FIELDS: tuple[str, ...] = ("goto2_right", "goto2_left")
-LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
-                                       "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS,
-                                       "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS,
-                                       "dual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS
-                                       + DUAL_FIELDS}
-#: The settings of the ``goto`` whose action a ``residual`` policy is given, pinned here
-#: (not goto's defaults) so that a trained policy's input never changes under it.
-RESIDUAL_GOTO: dict[str, Any] = {"turn_tolerance": 0.4, "stop_fraction": 0.5, "margin": 0.02, "memory": 0.5,
-                                   "spin_steps_left": 2}
-#: The second ``goto`` a ``dual`` policy is shown: the settings that gain on the thesis's
-#: robots and on medium legs and lose on short legs (``reports/policy-headroom``), pinned.
-DUAL_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
-EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
-ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
-
+__all__ = ["ACTION_LAYOUT", "COMMAND", "CONTEXT_FIELDS", "DUAL_FIELDS", "DUAL_GOTO", "EPISODE_STEPS", "LAYOUTS",
+           "MEMORY_FIELDS", "OBS_LAYOUT", "POSITION", "QUATERNION", "RESIDUAL_FIELDS", "RESIDUAL_GOTO",
+           "ObservationContext", "OnnxPolicy", "PolicyError", "bundled_policy", "card_path", "layout_named",
+           "sha256_of"]
 
 class PolicyError(SimError):
     """A policy file that is missing, corrupt, or for another task or observation layout."""
@@ -127,12 +104,8 @@ class ObservationContext:
         self._goto: Any = None
         self._goto2: Any = None
         if layout == "memory":
-            from tumblebot.sim.goto import MotionMemory  # goto imports this module
-
             self._motion = MotionMemory()
         elif layout in ("residual", "dual"):
-            from tumblebot.sim.goto import GotoConfig, GotoController
-
             self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **RESIDUAL_GOTO))
             if layout == "dual":
                 self._goto2 = GotoController(GotoConfig(episode_steps=episode_steps, **DUAL_GOTO))
@@ -188,8 +161,6 @@ class ObservationContext:
 
     def _remember(self, obs: np.ndarray, first: bool) -> np.ndarray:
         """The motion estimates after this observation."""
-        from tumblebot.sim.goto import heading
-
         action = None if first else self._taken(obs)
         self._motion.observe(obs[POSITION][:2].astype(float), heading(obs[QUATERNION]), action)
         return np.asarray(self._motion.as_array(), dtype=np.float32)

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.sim.controllers import Controller, Servo, episode_seed
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.evaluate import Controller, Servo, episode_seed
 from tumblebot.sim.rollout import Actor, make_actor, run_episode
 from tumblebot.sim.tasks import get_task
 

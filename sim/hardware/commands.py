@@ -41,7 +41,7 @@ def _design(args: argparse.Namespace) -> Any:
 def _build(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from tumblebot.sim.hardware.catalogue import servo
+    from tumblebot.sim.catalogue import servo
     from tumblebot.sim.mass import DEFAULT_MASS_MODEL
 
     spec = servo(args.servo) if args.servo is not None else DEFAULT_MASS_MODEL.servo

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from tumblebot.sim.catalogue import ServoSpec
 from tumblebot.sim.design import Design
-from tumblebot.sim.hardware.catalogue import ServoSpec
 from tumblebot.sim.hardware.layout import HORN_ARM_HOLE, HORN_SCREW_HOLE, LEG_TAIL, MARKER_DIAMETER, marker_table
 from tumblebot.sim.mass import MassModel
 

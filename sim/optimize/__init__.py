@@ -80,6 +80,7 @@ from tumblebot.sim.optimize.storage import (
     load_study,
     open_storage,
     open_study,
+    promotions,
 )
 from tumblebot.sim.optimize.trials import (
     CONSTRAINT,
@@ -94,7 +95,6 @@ from tumblebot.sim.optimize.trials import (
     front_optima,
     full_batch_results,
     make_sampler,
-    promotions,
     running_trials,
     study_controllers,
     study_summary,

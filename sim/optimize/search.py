@@ -19,7 +19,7 @@ from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.objective import wrap_reward
 from tumblebot.sim.optimize.objective import Objective, OptimizeError, StopRequested
 from tumblebot.sim.optimize.recipes import Recipe
-from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, _storage_of
+from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, _storage_of, promotions
 from tumblebot.sim.optimize.trials import (
     CONSTRAINT,
     Candidate,
@@ -29,7 +29,6 @@ from tumblebot.sim.optimize.trials import (
     counted_trials,
     episode_count,
     make_sampler,
-    promotions,
     trial_design,
 )
 from tumblebot.sim.power import energy_per_metre

@@ -257,3 +257,12 @@ def open_study(storage: Any, name: str, config: StudyConfig) -> optuna.Study:
         raise OptimizeError(f"study {name!r} was created for a different objective; nothing was changed. "
                             + "; ".join(diff) + ". Use another --study, or repeat the original options.")
     return study
+
+
+def promotions(study: optuna.Study) -> dict[int, dict[str, Any]]:
+    """Full-batch results of promoted trials (efficient recipe), by trial number."""
+    out: dict[int, dict[str, Any]] = {}
+    for key, value in study.user_attrs.items():
+        if key.startswith(PROMOTED_PREFIX) and isinstance(value, dict) and "value" in value:
+            out[int(key[len(PROMOTED_PREFIX):])] = value
+    return out

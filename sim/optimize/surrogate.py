@@ -34,6 +34,7 @@ from scipy import optimize as sopt
 from scipy import stats
 
 from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.optimize.storage import TrialRecord, promotions
 from tumblebot.sim.power import energy_per_metre
 
 #: The lower and upper bounds of the design box, and its span, as arrays in PARAMETERS order.
@@ -192,9 +193,6 @@ class Observation:
 
 def observations(study: optuna.Study, weights: dict[str, float]) -> list[Observation]:
     """Every feasible finished trial with its episodes (a promoted trial's full batch)."""
-    from tumblebot.sim.optimize.storage import TrialRecord
-    from tumblebot.sim.optimize.trials import promotions
-
     promoted = promotions(study)
     out = []
     for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):

@@ -15,7 +15,8 @@ from tumblebot.sim.design import PARAMETERS, Design
 from tumblebot.sim.evaluate import Controller, Servo
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
-from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, load_config
+from tumblebot.sim.optimize.storage import TrialRecord, load_config, promotions
+from tumblebot.sim.optimize.surrogate import RSampler
 
 if TYPE_CHECKING:
     import optuna
@@ -55,8 +56,6 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
 
     salted = int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0])
     if objective is not None and objective.tasks and (recipe.name == "efficient" or objective.front):
-        from tumblebot.sim.optimize.surrogate import RSampler
-
         return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted,
                         margin=bool(objective.front))
     return optuna.samplers.GPSampler(seed=salted, independent_sampler=_Startup(seed=seed),
@@ -98,15 +97,6 @@ def counted_trials(study: optuna.Study) -> int:
 
 def trial_design(t: optuna.trial.FrozenTrial) -> Design:
     return Design(*(t.params[n] for n in PARAMETERS))
-
-
-def promotions(study: optuna.Study) -> dict[int, dict[str, Any]]:
-    """Full-batch results of promoted trials (efficient recipe), by trial number."""
-    out: dict[int, dict[str, Any]] = {}
-    for key, value in study.user_attrs.items():
-        if key.startswith(PROMOTED_PREFIX) and isinstance(value, dict) and "value" in value:
-            out[int(key[len(PROMOTED_PREFIX):])] = value
-    return out
 
 
 @dataclass

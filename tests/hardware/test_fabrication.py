@@ -19,8 +19,8 @@ from typing import Any
 
 import pytest
 
+from tumblebot.sim.catalogue import CatalogueError, catalogue, default_servo, servo
 from tumblebot.sim.design import Design
-from tumblebot.sim.hardware.catalogue import CatalogueError, catalogue, default_servo, servo
 from tumblebot.sim.hardware.layout import MARKERS
 from tumblebot.sim.hardware.package import bom
 from tumblebot.sim.mass import DEFAULT_MASS_MODEL

@@ -131,7 +131,7 @@ def test_that_the_mock_and_replay_sources_produce_poses(tmp_path: Path) -> None:
         played = [p.position[0] for p in got]
         start = max(i for i, x in enumerate(played) if x == 0.0)  # held start poses queued before, then the recording
         assert played[start:start + 10] == pytest.approx([i * 0.01 for i in range(10)])
-        assert all(b.t >= a.t for a, b in zip(got, got[1:], strict=False))
+        assert all(b.t >= a.t for a, b in itertools.pairwise(got))
     finally:
         src.close()
 

@@ -172,7 +172,7 @@ def test_that_a_run_killed_mid_training_resumes_from_its_last_checkpoint(tmp_pat
     (["evaluate", "--task", "swim", "--design", XI3], "unknown task 'swim'"),
     (["evaluate", "--task", "nav-flat", "--design", XI3, "--policy", "missing.onnx"], "does not exist"),
     (["train", "--resume"], "--resume needs --run-dir"),
-    (["train", "--resume", "--run-dir", "r", "--init-from", "x.zip"], "--init-from starts a new run"),
+    (["train", "--resume", "--run-dir", "r", "--init-from", "x.zip"], "--init-from: options of a new run"),
     (["train", "--task", "incline", "--run-dir", "runs/never-made", "--init-from", "no-such.zip"],
      "does not exist"),
     (["export", "no-such-run", "-o", "x.onnx"], "no checkpoint"),

@@ -1,0 +1,72 @@
+"""What drives the robot in an episode, and which episode is which.
+
+:class:`Controller` names an ONNX policy, a scripted gait or ``goto`` (picklable, so worker
+processes rebuild it); :func:`episode_seed` is the reset seed of episode ``i`` of an
+evaluation seeded ``S``, the same for every design and every number of workers (common
+random numbers). The evaluation (:mod:`tumblebot.sim.evaluate`) and the worker pool
+(:mod:`tumblebot.sim.runner`) both build on this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tumblebot.sim.errors import SimError
+from tumblebot.sim.gaits import get_gait
+from tumblebot.sim.goto import check_navigation_task
+from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.policy import OnnxPolicy, PolicyError
+from tumblebot.sim.tasks import get_task
+
+
+@dataclass(frozen=True)
+class Controller:
+    """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
+    (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
+    controller of :mod:`tumblebot.sim.goto`). Picklable, so workers can rebuild it."""
+
+    kind: str
+    name: str
+    #: use a policy under a servo other than the one its model card says it was trained under
+    allow_servo_mismatch: bool = False
+
+    @classmethod
+    def of_gait(cls, name: str) -> Controller:
+        """``--gait NAME``: a scripted gait, or ``goto``."""
+        return cls("goto", "goto") if name == "goto" else cls("gait", name)
+
+    def label(self) -> str:
+        if self.kind == "onnx":
+            return Path(self.name).name
+        return "goto" if self.kind == "goto" else f"gait:{self.name}"
+
+    def check(self, task: str, servo: Servo | None = None) -> None:
+        """Fail fast, in this process, with one clear error. A policy is refused under a
+        servo other than the one it was trained under (its model card's ``servo``; cards
+        without one were trained under the default), unless ``allow_servo_mismatch``."""
+        if self.kind == "onnx":
+            policy = OnnxPolicy(Path(self.name), task=get_task(task).name)
+            trained = Servo.from_card(policy.card.get("servo") or {})
+            if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
+                raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
+                                  f"not the {servo.describe()}: train one under that world (tumblebot train "
+                                  "--physics, --motor-model/--stall-torque), or pass --allow-servo-mismatch to use "
+                                  "it anyway")
+        elif self.kind == "goto":
+            check_navigation_task(task)
+        elif self.kind == "gait":
+            get_gait(self.name)
+        else:
+            raise SimError(f"unknown controller kind {self.kind!r}")
+
+
+#: The world an evaluation runs in: a physics profile (the name says what results depend on).
+Servo = PhysicsProfile
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """The reset seed of episode ``index`` in an evaluation seeded ``seed``."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1, dtype=np.uint32)[0])

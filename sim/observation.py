@@ -1,0 +1,74 @@
+"""The policies' observation layouts, each declared once as named fields.
+
+The environment's observation is the thesis's 9 numbers (:data:`OBS_LAYOUT`). A policy
+takes one of five layouts (:data:`LAYOUTS`):
+
+* ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
+* ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
+  the design it built (``x, y, z, l``, m), the steps left in the episode as a fraction
+  of the episode (1 before the first step), and the previous step's 9 thesis numbers
+  (the current ones again before the first step). A policy with this input is told the
+  body it drives, how much time is left, and what its last action did.
+* ``memory``: ``context``, then ``goto``'s memory of the episode (:data:`MEMORY_FIELDS`,
+  :class:`tumblebot.sim.goto.MotionMemory`): the running estimates of a drive step's
+  length (m) and of each spin's yaw change (rad), learnt from every step so far, with the
+  action of each step read from the command the next observation carries.
+* ``residual``: ``memory``, then the action ``goto`` itself would take now
+  (:data:`RESIDUAL_FIELDS`, each leg's command 0/1/2; :class:`tumblebot.sim.goto.GotoController`
+  with the settings in :data:`RESIDUAL_GOTO`, told every step the action actually taken).
+  A policy with this input starts from the hand-written controller's choice and learns
+  where to deviate from it (residual policy learning).
+* ``dual``: ``residual``, then the action of a second ``goto`` with the settings in
+  :data:`DUAL_GOTO` (:data:`DUAL_FIELDS`), which suit some bodies better and others worse;
+  a policy with this input, which also knows the design, can follow whichever suits the
+  body it drives (:mod:`tumblebot.training.choice`).
+
+Code that reads a part of an observation asks for it by name (:func:`field_index`,
+:func:`fields_slice`), never by a hand-counted offset. This module imports nothing of
+the simulator: the environment, ``goto``, the ONNX runner and training all import it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+#: The thesis observation, the environment's: position, orientation quaternion, last command.
+OBS_LAYOUT: tuple[str, ...] = ("px", "py", "pz", "qx", "qy", "qz", "qw", "cmd_right", "cmd_left")
+POSITION, QUATERNION, COMMAND = slice(0, 3), slice(3, 7), slice(7, 9)  #: where each part lies in it
+CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l", "steps_left",
+                                   *(f"prev_{name}" for name in OBS_LAYOUT))
+MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
+RESIDUAL_FIELDS: tuple[str, ...] = ("goto_right", "goto_left")
+DUAL_FIELDS: tuple[str, ...] = ("goto2_right", "goto2_left")
+LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
+                                       "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS,
+                                       "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS,
+                                       "dual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS
+                                       + DUAL_FIELDS}
+#: The settings of the ``goto`` whose action a ``residual`` policy is given, pinned here
+#: (not goto's defaults) so that a trained policy's input never changes under it.
+RESIDUAL_GOTO: dict[str, Any] = {"turn_tolerance": 0.4, "stop_fraction": 0.5, "margin": 0.02, "memory": 0.5,
+                                   "spin_steps_left": 2}
+#: The second ``goto`` a ``dual`` policy is shown: the settings that gain on the thesis's
+#: robots and on medium legs and lose on short legs (``reports/policy-headroom``), pinned.
+DUAL_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
+EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
+ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
+
+
+
+
+def field_index(layout: str, name: str) -> int:
+    """Where the field ``name`` lies in ``layout`` (``KeyError`` names both if it is not there)."""
+    fields = LAYOUTS[layout]
+    if name not in fields:
+        raise KeyError(f"layout {layout!r} has no field {name!r}")
+    return fields.index(name)
+
+
+def fields_slice(layout: str, first: str, last: str) -> slice:
+    """The fields from ``first`` to ``last`` (inclusive) of ``layout``, as a slice."""
+    start, stop = field_index(layout, first), field_index(layout, last)
+    if stop < start:
+        raise KeyError(f"field {last!r} comes before {first!r} in layout {layout!r}")
+    return slice(start, stop + 1)
