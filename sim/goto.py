@@ -41,6 +41,7 @@ import numpy as np
 
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.observation import POSITION, QUATERNION
+from tumblebot.sim.tasks import TASKS, get_task
 
 Action = tuple[int, int]
 
@@ -49,7 +50,8 @@ REVERSE: Action = (0, 0)
 STOP: Action = (1, 1)
 SPIN_POSITIVE: Action = (2, 0)  #: right leg forward, left reverse: ψ increases
 SPIN_NEGATIVE: Action = (0, 2)
-NAVIGATION_TASKS = ("nav-flat", "nav-terrain")
+#: the tasks whose goal is the origin (they start on a ring around it)
+NAVIGATION_TASKS: tuple[str, ...] = tuple(name for name, task in TASKS.items() if task.start == "ring")
 
 #: Priors: a drive step's length (m) and each spin's yaw change (rad), about what the
 #: thesis's ξ = 3 robot does under the default servo. The first observed step overrides half.
@@ -215,8 +217,6 @@ class GotoPolicy:
 
 def check_navigation_task(task: str) -> str:
     """The task's short name; refuses tasks ``goto`` cannot do with one clear error."""
-    from tumblebot.sim.tasks import get_task
-
     name = get_task(task).name
     if name not in NAVIGATION_TASKS:
         raise SimError(f"the goto controller navigates to a goal; task {name!r} is not navigation "

@@ -203,3 +203,9 @@ class PhysicsProfile:
 
 THESIS = PhysicsProfile()  #: the thesis's world: its servo constants, floor and radio
 BUILTIN: dict[str, PhysicsProfile] = {"thesis": THESIS}
+
+
+def profile_from_args(args: Any) -> PhysicsProfile:
+    """The profile a command's ``--physics``, ``--motor-model`` and ``--stall-torque`` ask for
+    (parsed arguments with those three attributes; ``None`` where not given)."""
+    return PhysicsProfile.from_arguments(args.physics, args.motor_model, args.stall_torque)

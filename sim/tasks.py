@@ -100,6 +100,11 @@ TASKS: dict[str, TaskSpec] = {
 }
 
 
+#: The task names, in the registry's order (the one list every command and help text uses).
+TASK_NAMES: tuple[str, ...] = tuple(TASKS)
+TASK_CHOICES = ", ".join(TASK_NAMES[:-1]) + " or " + TASK_NAMES[-1]  #: for help texts
+
+
 def same_goal(a: str, b: str) -> bool:
     """Whether a policy trained for task ``a`` may serve task ``b``: the same reward from the
     same start, on other ground (``nav-flat`` and ``nav-terrain``). Unknown names: False."""

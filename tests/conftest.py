@@ -6,8 +6,6 @@ import pytest
 
 from tumblebot.sim.design import Design
 
-TASK_NAMES = ("nav-flat", "nav-terrain", "distance-flat", "incline")
-
 
 @pytest.fixture
 def xi3_robot() -> Design:

@@ -13,9 +13,7 @@ from tumblebot.sim.design import Design
 from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, MotorModel, TumblerEnv
 from tumblebot.sim.errors import SimError, UnknownTaskError
 from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.tasks import TASKS
-
-from ..conftest import TASK_NAMES
+from tumblebot.sim.tasks import TASK_NAMES, TASKS
 
 ENV_IDS = [TASKS[t].env_id for t in TASK_NAMES]
 
