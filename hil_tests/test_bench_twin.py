@@ -9,11 +9,11 @@ import json
 import os
 import socket
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from tests.helpers import tb as run_tumblebot
 
 from tumblebot.host.twin import TwinStack
 from tumblebot.sim.design import Design
@@ -23,9 +23,8 @@ XI3 = Design(0.292, 0.129, 0.098, 0.136)
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
-def tb(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL, env=ENV)
+def tb(*args: str, timeout: float = 1200) -> subprocess.CompletedProcess[str]:
+    return run_tumblebot(*args, timeout=timeout, env=ENV)
 
 
 def place(stack: TwinStack, trial: int) -> None:

@@ -6,10 +6,10 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from tests.helpers import tb as run_tumblebot
 
 from tumblebot.host.trials import load_index
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
@@ -22,8 +22,7 @@ HIDDEN: dict[str, object] = {"name": "hidden-lab", "free_speed": 4.5, "stall_tor
 
 
 def tb(*args: str, timeout: float = 1200) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL, env=ENV)
+    return run_tumblebot(*args, timeout=timeout, env=ENV)
 
 
 def test_calibration_from_twin_identification_runs_finds_the_hidden_servo(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from tests.helpers import tb as run_tumblebot
 
 from tumblebot.host.controller import ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.link import AgentClient, load_host_key
@@ -31,9 +32,8 @@ XI3 = Design(0.292, 0.129, 0.098, 0.136)
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
-def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL, env=ENV)
+def tb(*args: str, timeout: float = 1200) -> subprocess.CompletedProcess[str]:
+    return run_tumblebot(*args, timeout=timeout, env=ENV)
 
 
 def control(stack: TwinStack, msg: dict[str, Any]) -> dict[str, Any]:

@@ -11,14 +11,12 @@ from pathlib import Path
 import pytest
 
 from tests.calibration_logs import write_set
+from tests.helpers import tb
 from tumblebot.sim.physics import THESIS
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def tb(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
 def _agent_only_python(tmp_path: Path, code: str) -> subprocess.CompletedProcess[str]:

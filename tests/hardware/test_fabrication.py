@@ -10,8 +10,6 @@ from __future__ import annotations
 import csv
 import json
 import re
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from dataclasses import replace
 from pathlib import Path
@@ -19,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from tests.helpers import tb
 from tumblebot.sim.catalogue import CatalogueError, catalogue, default_servo, servo
 from tumblebot.sim.design import Design
 from tumblebot.sim.hardware.layout import MARKERS
@@ -33,9 +32,6 @@ DESIGNS = {
 }
 
 
-def tb(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=600, check=False, stdin=subprocess.DEVNULL)
 
 
 def read_dxf(path: Path) -> list[dict[str, Any]]:

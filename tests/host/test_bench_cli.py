@@ -6,13 +6,12 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import tb
 from tumblebot.host.bench import body_roll, motion, resting_frame
 from tumblebot.host.emulator import EmulatedUno
 from tumblebot.host.mocap import Pose
@@ -20,9 +19,6 @@ from tumblebot.host.mocap import Pose
 pytestmark = pytest.mark.hil
 
 
-def tb(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
 def test_that_trim_shows_sets_and_persists_the_trims_in_the_firmware(

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.calibration_logs import write_set
+from tests.helpers import tb
 from tumblebot.host.calibrate import cache_path
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
 from tumblebot.sim.physics import PhysicsProfile
@@ -23,9 +24,6 @@ HIDDEN = PhysicsProfile.from_json({"name": "hidden", "free_speed": 4.4, "stall_t
 SMALL = ("--budget", str(MIN_DESIGN_POINTS), "--workers", "2")
 
 
-def tb(*args: str, timeout: float = 900) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
 @pytest.fixture(scope="module")

@@ -5,19 +5,13 @@ pyserial's loop://, an unplugged Arduino)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import tb
 from tumblebot.host.link import new_key
 from tumblebot.host.trials import load_index
-
-
-def tb(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
 def run_args(out: Path, address: str, key: Path, *extra: str) -> list[str]:

@@ -10,6 +10,7 @@ import numpy as np
 import optuna
 import pytest
 
+from tests.helpers import tb
 from tumblebot.sim.design import Design
 from tumblebot.sim.optimize import (
     Objective,
@@ -21,8 +22,6 @@ from tumblebot.sim.optimize import (
     surrogate,
 )
 from tumblebot.sim.power import energy_per_metre
-
-from .test_optimize import tb
 
 
 def _truth(W: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ import numpy as np
 import optuna
 import pytest
 
+from tests.helpers import tb
 from tumblebot.sim.design import Design
 from tumblebot.sim.optimize import (
     Objective,
@@ -30,11 +31,6 @@ from tumblebot.sim.optimize import (
     promotions,
     screen_scores,
 )
-
-
-def tb(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, stdin=subprocess.DEVNULL)
 
 
 def load(db: Path, name: str) -> optuna.Study:

@@ -4,21 +4,15 @@ environment running the profile's servo."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pybullet as p
 import pytest
 
+from tests.helpers import tb
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.physics import THESIS, PhysicsError, PhysicsProfile
 from tumblebot.sim.randomization import Randomization
-
-
-def tb(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
-                          timeout=120, check=False, stdin=subprocess.DEVNULL)
 
 
 def test_that_the_thesis_profile_is_what_the_simulator_assumed_before_profiles() -> None:
