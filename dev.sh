@@ -3,10 +3,11 @@
 #
 #   ./dev.sh demo   set up .venv (simulation + optimisation extras) and run the main job:
 #                   a short design optimisation with the bundled policies, and its report
-#   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types and all tests
-#                   (firmware build with avr-gcc, C++ host tests with ctest, then pytest)
+#   ./dev.sh test   set up .venv (everything, torch pinned) and run lint, types, the import
+#                   contracts and all tests (firmware build with avr-gcc, C++ host tests with
+#                   ctest, then pytest, the documentation site's build and tutorials among them)
 #   ./dev.sh test --fast
-#                   the developers' loop (a few minutes): ruff, mypy and the tests marked neither
+#                   the developers' loop (a few minutes): ruff, mypy, lint-imports and the tests marked neither
 #                   slow nor hil (nothing runs in simavr); extra arguments go to pytest
 #   ./dev.sh setup  set up .venv with everything, run nothing
 #
@@ -113,7 +114,7 @@ case "$cmd" in
         "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n "2,15p" "$0"
+        sed -n "2,16p" "$0"
         exit 2
         ;;
 esac
