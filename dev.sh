@@ -114,7 +114,7 @@ case "$cmd" in
         "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n "2,16p" "$0"
+        sed -n "2,15p" "$0"
         exit 2
         ;;
 esac
