@@ -142,7 +142,7 @@ def open_loop(holdout: Path, fitted: PhysicsProfile) -> tuple[float, float]:
 
 def optimum(folder: Path, profile: Path, study: str, trials: int) -> tuple[float, ...]:
     """The design ``optimize --physics PROFILE`` finds (resumed if the study exists)."""
-    summary = folder / f"{study}.json"
+    summary = folder / f"optimum-{study}.json"  # not the profile files beside it
     run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--recipe", "efficient",
              "--trials", str(trials), "--batch", "48", "--physics", str(profile), "--seed", "0", "--workers", "2",
              "--storage", f"sqlite:///{folder / 'decision.db'}", "--study", study, "--quiet", "--json", str(summary))
