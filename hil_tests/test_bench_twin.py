@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from tests.helpers import tb as run_tumblebot
 
+from tests.helpers import tb as run_tumblebot
 from tumblebot.host.twin import TwinStack
 from tumblebot.sim.design import Design
 

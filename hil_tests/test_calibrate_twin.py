@@ -9,8 +9,8 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from tests.helpers import tb as run_tumblebot
 
+from tests.helpers import tb as run_tumblebot
 from tumblebot.host.trials import load_index
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
 

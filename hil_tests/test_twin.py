@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from tests.helpers import tb as run_tumblebot
 
+from tests.helpers import tb as run_tumblebot
 from tumblebot.host.controller import ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.link import AgentClient, load_host_key
 from tumblebot.host.mocap import open_source
