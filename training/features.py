@@ -32,7 +32,8 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from tumblebot.sim.policy import COMMAND, LAYOUTS, OBS_LAYOUT, POSITION, QUATERNION, ObservationContext
+from tumblebot.sim.observation import COMMAND, LAYOUTS, POSITION, QUATERNION, fields_slice
+from tumblebot.sim.policy import ObservationContext
 
 FEATURE_NAMES: tuple[str, ...] = (
     "px", "py", "pz",
@@ -55,7 +56,11 @@ DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_
                                        "design_reach")
 _DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
-_THESIS = len(OBS_LAYOUT)
+#: Where each part of a design-conditioned input lies, asked of the layouts by name
+_CURRENT = fields_slice("context", "px", "cmd_left")
+_DESIGN = fields_slice("context", "design_x", "design_l")
+_STEPS_LEFT = fields_slice("context", "steps_left", "steps_left")
+_PREVIOUS = fields_slice("context", "prev_px", "prev_cmd_left")
 
 
 def rotation_matrix(q: torch.Tensor) -> torch.Tensor:
@@ -91,8 +96,8 @@ class ContextFeatures(nn.Module):
         self.thesis = ObservationFeatures()
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        current, previous = obs[:, 0:_THESIS], obs[:, _THESIS + 5:2 * _THESIS + 5]
-        design, steps_left = obs[:, _THESIS:_THESIS + 4], obs[:, _THESIS + 4:_THESIS + 5]
+        current, previous = obs[:, _CURRENT], obs[:, _PREVIOUS]
+        design, steps_left = obs[:, _DESIGN], obs[:, _STEPS_LEFT]
         moved = (current[:, 0:2] - previous[:, 0:2]) / DESIGN_SCALE
         return torch.cat([self.thesis(current), self.thesis(previous), design / DESIGN_SCALE, steps_left, moved],
                          dim=-1)
@@ -141,7 +146,7 @@ class DualFeatures(ResidualFeatures):
         super().__init__(proposals=2)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        design = obs[:, _THESIS:_THESIS + 4]
+        design = obs[:, _DESIGN]
         radius = 0.5 * torch.sqrt(design[:, 1:2] ** 2 + design[:, 2:3] ** 2).clamp_min(1e-3)
         return torch.cat([super().forward(obs), design[:, 3:4] / radius - 1.0], dim=-1)
 

@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.goto import GotoConfig, GotoController
-from tumblebot.sim.policy import EPISODE_STEPS, OBS_LAYOUT
+from tumblebot.sim.observation import EPISODE_STEPS, fields_slice
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -104,7 +104,8 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
     the observation's design fields; default: goto's defaults everywhere)."""
     n = venv.num_envs  # type: ignore[attr-defined]
     teacher = teacher or goto_teacher(episode_steps)
-    design = slice(len(OBS_LAYOUT), len(OBS_LAYOUT) + 4)  # the context layouts' design_x … design_l
+    design = fields_slice("context", "design_x", "design_l")  # the same in every design-conditioned layout
+    thesis = fields_slice("context", "px", "cmd_left")
     obs = venv.reset()  # type: ignore[attr-defined]
     teachers = [GotoController(teacher(obs[i, design])) for i in range(n)]
     step = np.zeros(n, dtype=int)
@@ -118,7 +119,7 @@ def collect(model: object, venv: object, episodes: int, student_drives: bool, ga
     while len(final) < episodes:
         if stop.signum is not None:
             raise KeyboardInterrupt
-        label = [teachers[i].act(obs[i, :9], int(step[i])) for i in range(n)]
+        label = [teachers[i].act(obs[i, thesis], int(step[i])) for i in range(n)]
         if student_drives:
             actions = np.asarray(model.predict(obs, deterministic=True)[0])  # type: ignore[attr-defined]
             agree += int(sum(tuple(int(v) for v in actions[i]) == label[i] for i in range(n)))
