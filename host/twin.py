@@ -37,7 +37,7 @@ import numpy as np
 from tumblebot.errors import TumblebotError
 from tumblebot.host.mocap import encode_pose_datagram
 from tumblebot.sim.design import Design
-from tumblebot.sim.evaluate import Servo, episode_seed
+from tumblebot.sim.evaluate import episode_seed
 from tumblebot.sim.physics import PhysicsProfile
 
 REPO = Path(__file__).resolve().parents[1]
@@ -198,7 +198,7 @@ class _World:
 
 
 def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: Path, design: Design, seed: int,
-              body: str = "tumbler", pose_rate: float = 100.0, servo: Servo | None = None,
+              body: str = "tumbler", pose_rate: float = 100.0, servo: PhysicsProfile | None = None,
               hardware: ServoHardware | None = None, physics: PhysicsProfile | None = None,
               pose_key: bytes | None = None) -> int:
     """The world process: real-time physics, mocap out, servo pulses in. Runs until
@@ -243,7 +243,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     return 0
 
 
-def _world_env(design: Design, servo: Servo | None, physics: PhysicsProfile | None) -> Any:
+def _world_env(design: Design, servo: PhysicsProfile | None, physics: PhysicsProfile | None) -> Any:
     from tumblebot.sim.env import TumblerEnv
     from tumblebot.sim.randomization import Randomization
 
@@ -251,7 +251,7 @@ def _world_env(design: Design, servo: Servo | None, physics: PhysicsProfile | No
         return TumblerEnv(task="nav-flat", design=design, randomization=physics.randomization(Randomization(
             design=False)), **physics.env_kwargs())
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
-    servo = servo or Servo()
+    servo = servo or PhysicsProfile()
     return TumblerEnv(task="nav-flat", design=design, randomization=replace(
         servo.randomization(Randomization(design=False)), latency=(0.0, 0.0)), **servo.env_kwargs())
 
@@ -293,11 +293,11 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
 class TwinStack:
     """Starts the world and the agent as processes; the host is run against them."""
 
-    def __init__(self, workdir: Path, design: Design, seed: int, servo: Servo | None = None,
+    def __init__(self, workdir: Path, design: Design, seed: int, servo: PhysicsProfile | None = None,
                  world_args: list[str] | None = None) -> None:
         from tumblebot.host.link import new_key
 
-        servo = servo or Servo()
+        servo = servo or PhysicsProfile()
         self.workdir = workdir
         self.key = workdir / "agent.key"
         new_key(self.key)
@@ -364,12 +364,12 @@ class TwinStack:
 
 def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tuple[float, float], heading: float,
              design: Design, seed: int, policy: str, extra: list[str] | None = None,
-             servo: Servo | None = None, world_physics: Path | None = None) -> int:
+             servo: PhysicsProfile | None = None, world_physics: Path | None = None) -> int:
     """Run a trial set through the twin (the host as its own process). Returns its exit code.
     The world's servo (or hidden physics profile, ``world_physics``) is recorded in
     ``OUT/twin.json``, so :func:`consistency` simulates under the same world; nothing the
     host runs reads that record."""
-    servo = servo or Servo()
+    servo = servo or PhysicsProfile()
     physics = PhysicsProfile.load(str(world_physics)) if world_physics is not None else None
     world_args = ["--world-physics", str(world_physics)] if world_physics is not None else None
     with tempfile.TemporaryDirectory(prefix="tumblebot-twin-") as tmp, \
@@ -396,13 +396,13 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
         return code
 
 
-def twin_servo(folder: Path) -> Servo:
+def twin_servo(folder: Path) -> PhysicsProfile:
     """The servo a twin trial set's world ran (the default for sets made before it was recorded)."""
     path = folder / "twin.json"
     if not path.is_file():
-        return Servo()
+        return PhysicsProfile()
     try:
-        return Servo.from_card(json.loads(path.read_text()).get("servo") or {})
+        return PhysicsProfile.from_card(json.loads(path.read_text()).get("servo") or {})
     except (ValueError, AttributeError) as exc:
         raise TwinError(f"{path} is not a twin record: {exc}") from None
 

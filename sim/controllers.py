@@ -43,13 +43,13 @@ class Controller:
             return Path(self.name).name
         return "goto" if self.kind == "goto" else f"gait:{self.name}"
 
-    def check(self, task: str, servo: Servo | None = None) -> None:
+    def check(self, task: str, servo: PhysicsProfile | None = None) -> None:
         """Fail fast, in this process, with one clear error. A policy is refused under a
         servo other than the one it was trained under (its model card's ``servo``; cards
         without one were trained under the default), unless ``allow_servo_mismatch``."""
         if self.kind == "onnx":
             policy = OnnxPolicy(Path(self.name), task=get_task(task).name)
-            trained = Servo.from_card(policy.card.get("servo") or {})
+            trained = PhysicsProfile.from_card(policy.card.get("servo") or {})
             if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
                 raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
                                   f"not the {servo.describe()}: train one under that world (tumblebot train "
@@ -63,8 +63,6 @@ class Controller:
             raise SimError(f"unknown controller kind {self.kind!r}")
 
 
-#: The world an evaluation runs in: a physics profile (the name says what results depend on).
-Servo = PhysicsProfile
 
 
 def episode_seed(seed: int, index: int) -> int:

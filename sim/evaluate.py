@@ -16,15 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.controllers import Controller, Servo, episode_seed
+from tumblebot.sim.controllers import Controller, episode_seed
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.runner import EpisodeRunner
 from tumblebot.sim.stats import mean_ci95
 from tumblebot.sim.tasks import get_task
 
-__all__ = ["Controller", "EvalResult", "Servo", "episode_seed", "evaluate"]
+__all__ = ["Controller", "EvalResult", "episode_seed", "evaluate"]
 
 
 @dataclass
@@ -37,7 +38,7 @@ class EvalResult:
     final_distance: np.ndarray  #: planar distance to the origin at the end, m
     final_position: np.ndarray  #: (N, 3)
     wall_seconds: float
-    servo: Servo = field(default_factory=Servo)
+    servo: PhysicsProfile = field(default_factory=PhysicsProfile)
     e: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -83,10 +84,10 @@ class EvalResult:
 
 
 def evaluate(task: str, design: Design, controller: Controller, episodes: int, seed: int = 0,
-             workers: int = 1, progress: bool = False, servo: Servo | None = None) -> EvalResult:
+             workers: int = 1, progress: bool = False, servo: PhysicsProfile | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
     spec = get_task(task)
-    servo = servo or Servo()
+    servo = servo or PhysicsProfile()
     if episodes < 1:
         raise SimError(f"episodes={episodes} must be at least 1")
     if workers < 1:

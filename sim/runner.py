@@ -22,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.controllers import Controller, Servo, episode_seed
+from tumblebot.sim.controllers import Controller, episode_seed
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.rollout import Actor, make_actor, run_episode
 from tumblebot.sim.tasks import get_task
 
@@ -34,7 +35,7 @@ Result = tuple[str, int, float, tuple[float, float, float]]  # task, episode ind
 class _Worker:
     """One process's environments and controllers, one per task, reused across designs."""
 
-    def __init__(self, controllers: dict[str, Controller], servo: Servo) -> None:
+    def __init__(self, controllers: dict[str, Controller], servo: PhysicsProfile) -> None:
         self.controllers, self.servo = controllers, servo
         self.envs: dict[str, Any] = {}
         self.actors: dict[str, Actor] = {}
@@ -62,7 +63,7 @@ class _Worker:
 _worker: _Worker | None = None  #: in a pool process
 
 
-def _init_worker(controllers: dict[str, Controller], servo: Servo) -> None:
+def _init_worker(controllers: dict[str, Controller], servo: PhysicsProfile) -> None:
     global _worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
     _worker = _Worker(controllers, servo)
@@ -86,10 +87,10 @@ class EpisodeRunner:
     """
 
     def __init__(self, controllers: Mapping[str, Path | str | Controller], workers: int = 1,
-                 servo: Servo | None = None) -> None:
+                 servo: PhysicsProfile | None = None) -> None:
         if workers < 1:
             raise SimError(f"workers={workers} must be at least 1")
-        self.servo = servo or Servo()
+        self.servo = servo or PhysicsProfile()
         specs: dict[str, Controller] = {}
         for task, c in controllers.items():
             name = get_task(task).name

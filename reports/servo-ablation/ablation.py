@@ -22,15 +22,16 @@ from typing import Any
 
 from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller, Servo, evaluate
+from tumblebot.sim.evaluate import Controller, evaluate
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.policy import bundled_policy, sha256_of
 
 HERE = Path(__file__).resolve().parent
 SERVOS = {
-    "dc 0.58 N·m (default)": Servo.of("dc", STALL_TORQUE),
-    "velocity 0.58 N·m": Servo.of("velocity", STALL_TORQUE),
-    "velocity 2 N·m": Servo.of("velocity", 2.0),
-    "velocity 10 N·m (predecessor-like)": Servo.of("velocity", 10.0),
+    "dc 0.58 N·m (default)": PhysicsProfile.of("dc", STALL_TORQUE),
+    "velocity 0.58 N·m": PhysicsProfile.of("velocity", STALL_TORQUE),
+    "velocity 2 N·m": PhysicsProfile.of("velocity", 2.0),
+    "velocity 10 N·m (predecessor-like)": PhysicsProfile.of("velocity", 10.0),
 }
 
 

@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller, Servo
+from tumblebot.sim.evaluate import Controller
 from tumblebot.sim.optimize import open_storage
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.report import paired_p
 from tumblebot.sim.report.tables import load_results
 from tumblebot.sim.runner import EpisodeRunner
@@ -45,7 +46,8 @@ HERE = Path(__file__).resolve().parent
 TASKS = ("nav-flat", "distance-flat", "incline")
 STUDIES = {"nav-flat": "nav-flat-front", "nav-terrain": "nav-terrain-xi0", "distance-flat": "distance-flat-xi0",
            "incline": "incline-xi0"}
-SERVOS = {"realistic (dc, 0.58 N·m)": Servo(), "strong (velocity, 10 N·m)": Servo.of("velocity", 10.0)}
+SERVOS = {"realistic (dc, 0.58 N·m)": PhysicsProfile(),
+          "strong (velocity, 10 N·m)": PhysicsProfile.of("velocity", 10.0)}
 #: the controller of each task (no training needed, so any servo)
 CONTROLLERS = {"nav-flat": Controller.of_gait("goto"), "distance-flat": Controller.of_gait("forward"),
                "incline": Controller.of_gait("forward")}

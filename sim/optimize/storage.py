@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote, urlsplit, urlunsplit
 
 from tumblebot.sim.constants import STALL_TORQUE
-from tumblebot.sim.evaluate import Servo
 from tumblebot.sim.optimize.objective import Objective, OptimizeError, format_xi
 from tumblebot.sim.optimize.recipes import Recipe
+from tumblebot.sim.physics import PhysicsProfile
 
 if TYPE_CHECKING:
     import optuna
@@ -69,17 +69,17 @@ class StudyConfig:
 
     @classmethod
     def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
-           controller: str = "policy", servo: Servo | None = None) -> StudyConfig:
+           controller: str = "policy", servo: PhysicsProfile | None = None) -> StudyConfig:
         xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
-        servo = servo or Servo()
+        servo = servo or PhysicsProfile()
         kept = servo.as_fields()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
                    recipe.startup, seed, policies, controller, kept["motor_model"], kept["stall_torque"],
                    [format_xi(x) for x in objective.front], kept["physics"])
 
-    def servo(self) -> Servo:
+    def servo(self) -> PhysicsProfile:
         """The study's physics profile (the world of every episode)."""
-        return Servo.of_fields(self.motor_model, self.stall_torque, self.physics)
+        return PhysicsProfile.of_fields(self.motor_model, self.stall_torque, self.physics)
 
     def objective(self) -> Objective:
         xi = math.inf if self.xi == "inf" else float(self.xi)

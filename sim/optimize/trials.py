@@ -12,11 +12,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tumblebot.sim.design import PARAMETERS, Design
-from tumblebot.sim.evaluate import Controller, Servo
+from tumblebot.sim.evaluate import Controller
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
 from tumblebot.sim.optimize.storage import TrialRecord, load_config, promotions
 from tumblebot.sim.optimize.surrogate import RSampler
+from tumblebot.sim.physics import PhysicsProfile
 
 if TYPE_CHECKING:
     import optuna
@@ -173,7 +174,7 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
 
 
 def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
-                      servo: Servo | None = None) -> dict[str, Controller]:
+                      servo: PhysicsProfile | None = None) -> dict[str, Controller]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
     (the bundled ones with the thesis observation) or a gait name (``goto`` included), as
     a task → :class:`Controller` map, each checked for its task and ``servo`` (here,

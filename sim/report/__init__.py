@@ -16,9 +16,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from tumblebot.sim.design import PARAMETERS
-from tumblebot.sim.evaluate import Servo
 from tumblebot.sim.optimize import OptimizeError, open_storage
 from tumblebot.sim.optimize.storage import redact_url
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.report.markdown import render_markdown
 from tumblebot.sim.report.plots import draw_plots
 from tumblebot.sim.report.tables import (
@@ -46,7 +46,7 @@ __all__ = ["THESIS_TABLE_31", "THESIS_TABLE_31_P", "THESIS_TABLE_32", "Evaluated
 
 def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
                  workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
-                 controller: str | None = None, servo: Servo | None = None,
+                 controller: str | None = None, servo: PhysicsProfile | None = None,
                  allow_servo_mismatch: bool = False, xis: tuple[float, ...] | None = None) -> Path:
     """Evaluate and plot the studies; returns the path of ``report.md``.
 

@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Servo
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -28,6 +27,7 @@ from tumblebot.sim.optimize import (
     study_controllers,
     value_at,
 )
+from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.stats import mean_ci95
 
@@ -103,7 +103,8 @@ class Evaluator:
     """Evaluates designs on the report's episodes, with a cache and a progress bar."""
 
     def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
-                 controller: str = "policy", servo: Servo | None = None, allow_servo_mismatch: bool = False) -> None:
+                 controller: str = "policy", servo: PhysicsProfile | None = None,
+                 allow_servo_mismatch: bool = False) -> None:
         from tumblebot.sim.runner import EpisodeRunner
 
         self.runner = (EpisodeRunner(study_controllers(controller, tasks, allow_servo_mismatch), workers=workers,
@@ -212,8 +213,8 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
     return out
 
 
-def common_controller(results: list[StudyResult], controller: str | None, servo: Servo | None
-                       ) -> tuple[str, Servo]:
+def common_controller(results: list[StudyResult], controller: str | None, servo: PhysicsProfile | None
+                       ) -> tuple[str, PhysicsProfile]:
     """The controller and servo of the re-evaluation: as given, else the studies' own."""
     if controller is None:
         used = sorted({r.config.controller for r in results})
@@ -340,7 +341,8 @@ def one_parameter_slices(ev: Evaluator, reference: StudyResult, points: int) -> 
     return out
 
 
-def rebuild_pairs(usable: list[StudyResult], physics: Servo) -> tuple[list[tuple[StudyResult, StudyResult]], str]:
+def rebuild_pairs(usable: list[StudyResult], physics: PhysicsProfile
+                  ) -> tuple[list[tuple[StudyResult, StudyResult]], str]:
     """For "would I still build it?": each study optimised under ``physics`` with the study
     of the same objective optimised under ``thesis``. Returns the pairs, and when there
     are none, a line that says what is missing."""
@@ -365,7 +367,7 @@ def rebuild_pairs(usable: list[StudyResult], physics: Servo) -> tuple[list[tuple
                 f"{', '.join(r.name for r in mine)} with")
 
 
-def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Evaluator, physics: Servo,
+def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Evaluator, physics: PhysicsProfile,
                            allow_servo_mismatch: bool = False) -> list[dict[str, Any]]:
     """The thesis-world optimum and the optimum under ``physics`` (``ev``'s world), each
     scored under both worlds on the same episodes (per-episode objective, paired t-test),
@@ -381,7 +383,7 @@ def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Eva
 
 
 def _rebuild_row(thesis_study: StudyResult, mine: StudyResult, ev: Evaluator, ev_thesis: Evaluator,
-                 physics: Servo) -> dict[str, Any]:
+                 physics: PhysicsProfile) -> dict[str, Any]:
     assert thesis_study.best is not None and mine.best is not None
     objective = mine.objective
     tasks = objective.tasks

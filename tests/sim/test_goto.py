@@ -11,8 +11,9 @@ from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.design import Design
 from tumblebot.sim.env import TumblerEnv
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.evaluate import Controller, Servo, evaluate
+from tumblebot.sim.evaluate import Controller, evaluate
 from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
+from tumblebot.sim.physics import PhysicsProfile
 
 XI3 = Design(*XI3_ROBOT)
 XI0 = Design(0.293, 0.117, 0.158, 0.218)
@@ -75,7 +76,7 @@ def test_that_goto_reaches_the_goal_with_the_thesis_xi3_robot() -> None:
 
 def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_one_does_not() -> None:
     strong = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0,
-                      servo=Servo.of("velocity", 10.0))
+                      servo=PhysicsProfile.of("velocity", 10.0))
     realistic = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0)
     assert strong.mean_R > 0.7 and realistic.mean_R < 0.5, (strong.R, realistic.R)
 
@@ -84,9 +85,9 @@ def test_that_the_stall_torque_scales_the_servo() -> None:
     with pytest.raises(SimError, match="stall_torque"):
         TumblerEnv(stall_torque=0.0)
     with pytest.raises(SimError, match="stall_torque"):
-        Servo.of("dc", float("nan"))
+        PhysicsProfile.of("dc", float("nan"))
     with pytest.raises(SimError, match="motor_model"):
-        Servo.of("stepper", 1.0)
+        PhysicsProfile.of("stepper", 1.0)
 
 
 def test_that_evaluate_json_records_the_servo_and_the_controller(capsys: pytest.CaptureFixture[str]) -> None:
