@@ -19,6 +19,7 @@ from tumblebot.cliargs import (
     add_servo_arguments,
     check_writable,
     check_writable_folder,
+    count,
     non_negative_int,
     positive_int,
     seed_type,
@@ -367,7 +368,7 @@ def _add_export_command(sub: Subcommands) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="output .onnx file, e.g. policies/nav-flat.onnx")
     p.add_argument("--task", default=None, help="task (default: the run's, from its config.json; a navigation "
                                                 "run may be exported for either navigation task)")
-    p.add_argument("--eval-episodes", type=non_negative_int, default=240,
+    p.add_argument("--eval-episodes", type=count, default=240,
                    help="episodes per design for the card's evaluation (default 240; 0: skip it)")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (default 0)")
     p.add_argument("--workers", type=positive_int, default=1, help="evaluation worker processes (default 1)")
