@@ -19,18 +19,16 @@ predicts it does better.
    fitted to the sweep (the highest whose summed gain is within one standard error of the
    best), and the first elsewhere.
 
-    python -m tumblebot.training.choice sweep --designs 240 --episodes 48 --seed 3 \\
+    tumblebot choice sweep --designs 240 --episodes 48 --seed 3 \\
         --out training/checkpoints/goto-choice/sweep.jsonl
-    python -m tumblebot.training.choice fit training/checkpoints/goto-choice/sweep.jsonl \\
+    tumblebot choice fit training/checkpoints/goto-choice/sweep.jsonl \\
         -o training/checkpoints/goto-choice/choice.json
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing
-import sys
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -188,51 +186,3 @@ class GotoChoice:
                 or not np.isfinite(choice.threshold):
             raise TrainingError(f"goto choice {path}: inconsistent designs, differences, errors or threshold")
         return choice
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tumblebot.training.choice", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("sweep", help="goto under both settings on designs drawn over the space (resumable)")
-    p.add_argument("--designs", type=int, default=240)
-    p.add_argument("--episodes", type=int, default=48)
-    p.add_argument("--seed", type=int, default=3, help="designs and episodes (keep it apart from evaluation seeds)")
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
-    p = sub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
-    p.add_argument("sweep", type=Path)
-    p.add_argument("-o", "--output", type=Path, required=True)
-    args = parser.parse_args(argv)
-    try:
-        if args.command == "fit":
-            choice = GotoChoice.fit(read_sweep(args.sweep))
-            args.output.write_text(choice.to_json())
-            print(choice.summary())
-            return 0
-        if args.designs < 1 or args.episodes < 2 or args.workers < 1:
-            raise TrainingError("need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1")
-        done = read_sweep(args.out) if args.out.exists() else []
-        designs = sweep_designs(args.designs, args.seed)
-        for k, record in enumerate(done):  # continue only the same sweep
-            if k >= len(designs) or record.get("seed") != args.seed or record.get("episodes") != args.episodes \
-                    or not np.allclose(record["design"], designs[k].as_tuple()):
-                raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
-                                    f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed})")
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        with args.out.open("a") as out:
-            for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done)):
-                out.write(json.dumps(record) + "\n")
-                out.flush()
-                print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
-                      f"goto {record['goto']:.3f}, {record['difference']:+.3f} ± {record['se']:.3f}", flush=True)
-    except TrainingError as exc:
-        print(f"choice: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("choice: interrupted; run the same command to continue", file=sys.stderr)
-        return 130
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -325,7 +325,7 @@ def _add_imitate_command(sub: Subcommands) -> None:
                         "pinned settings; needs --choice; default context)")
     p.add_argument("--choice", type=Path, default=None, metavar="CHOICE.json",
                    help="with --observation dual: which goto settings suit which body (python -m "
-                        "tumblebot.training.choice fit); the teacher follows the better one on each body")
+                        "tumblebot choice fit); the teacher follows the better one on each body")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=seed_type, default=0, help="seed (default 0)")
     add_servo_arguments(p)
@@ -380,9 +380,72 @@ def _add_export_command(sub: Subcommands) -> None:
     p.set_defaults(func=_export)
 
 
+def _choice(args: argparse.Namespace) -> int:
+    """``tumblebot choice sweep|fit``: where goto's second setting beats its first, and the
+    teacher's rule fitted to it (:mod:`tumblebot.training.choice`)."""
+    import numpy as np
+
+    from tumblebot.sim.design import Design
+    from tumblebot.training.choice import GotoChoice, read_sweep, sweep, sweep_designs
+    from tumblebot.training.config import TrainingError
+
+    if args.choice_command == "fit":
+        check_writable(args.output, "-o")
+        choice = GotoChoice.fit(read_sweep(args.sweep))
+        args.output.write_text(choice.to_json())
+        print(choice.summary())
+        return 0
+    check_writable(args.out, "--out")
+    done = read_sweep(args.out) if args.out.exists() else []
+    designs = sweep_designs(args.designs, args.seed)
+    for k, record in enumerate(done):  # continue only the same sweep
+        if k >= len(designs) or record.get("seed") != args.seed or record.get("episodes") != args.episodes \
+                or not np.allclose(record["design"], designs[k].as_tuple()):
+            raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
+                                f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed})")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("a") as out:
+        for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done)):
+            out.write(json.dumps(record) + "\n")
+            out.flush()
+            print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
+                  f"goto {record['goto']:.3f}, {record['difference']:+.3f} ± {record['se']:.3f}", flush=True)
+    return 0
+
+
+def _add_choice_command(sub: Subcommands) -> None:
+    """The ``choice`` command: the sweep and the fit behind the bundled navigation policy's teacher."""
+    p = sub.add_parser("choice", help="where goto's second setting beats its first: a sweep over designs, "
+                                      "and the teacher's rule fitted to it (for imitate --choice)",
+                       description="sweep: goto under both pinned settings on designs drawn over the space "
+                                   "(resumable: the same command continues the file). fit: the threshold on "
+                                   "l/r the teacher uses, fitted to a sweep. Ctrl-C stops; the same command "
+                                   "resumes.")
+    csub = p.add_subparsers(dest="choice_command", required=True, metavar="{sweep,fit}")
+    s = csub.add_parser("sweep", help="goto under both settings on designs drawn over the space (resumable)")
+    s.add_argument("--designs", type=positive_int, default=240, help="designs to sweep (default 240)")
+    s.add_argument("--episodes", type=at_least_two, default=48, help="paired episodes per design (default 48)")
+    s.add_argument("--seed", type=seed_type, default=3,
+                   help="designs and episodes (default 3; keep it apart from evaluation seeds)")
+    s.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
+    s.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
+    f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
+    f.add_argument("sweep", type=Path, help="the sweep's JSON-lines file")
+    f.add_argument("-o", "--output", type=Path, required=True, help="the choice file (JSON) imitate --choice takes")
+    p.set_defaults(func=_choice)
+
+
+def at_least_two(text: str) -> int:
+    value = positive_int(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 2 (a paired difference needs two episodes)")
+    return value
+
+
 def add_commands(sub: Subcommands) -> None:
-    """Add ``train``, ``imitate``, ``curve``, ``export`` to the ``tumblebot`` parser's subcommands."""
+    """Add ``train``, ``imitate``, ``curve``, ``export`` and ``choice`` to the ``tumblebot`` parser's subcommands."""
     _add_train_command(sub)
     _add_imitate_command(sub)
     _add_curve_command(sub)
     _add_export_command(sub)
+    _add_choice_command(sub)

@@ -108,13 +108,11 @@ def test_that_imitate_refuses_a_dual_student_without_a_choice_before_writing(tmp
 
 def test_that_a_sweep_file_of_another_sweep_is_not_continued(tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
-    from tumblebot.training.choice import main as choice_main
-
     out = tmp_path / "sweep.jsonl"
     first = sweep_designs(3, seed=3)[0]
     out.write_text(json.dumps({"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3,
                                "difference": 0.0, "se": 0.01}) + "\n")
     before = out.read_text()
-    assert choice_main(["sweep", "--designs", "3", "--episodes", "48", "--seed", "4", "--out", str(out)]) == 2
+    assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "4", "--out", str(out)]) == 2
     assert "holds another sweep" in capsys.readouterr().err
     assert out.read_text() == before
