@@ -38,9 +38,7 @@ import hashlib
 import itertools
 import json
 import math
-import multiprocessing as mp
-import signal
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -49,6 +47,7 @@ import numpy as np
 
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.physics import MAX_LATENCY, PhysicsProfile
+from tumblebot.sim.pool import WorkerPool
 
 RECORD_HZ = 60  #: how often a replay records the body's pose (the mocap runs at about 100 Hz)
 MIN_STEPS = 6  #: logged steps a kind of command needs before its statistics count
@@ -272,15 +271,6 @@ def profile_at(prior: PhysicsProfile, values: dict[str, float], name: str | None
 
 
 # ----------------------------------------------------------------------------- simulating
-_traces: tuple[Trace, ...] = ()  #: in a pool process
-
-
-def _init_worker(traces: tuple[Trace, ...]) -> None:
-    global _traces
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
-    _traces = traces
-
-
 def simulate_set(traces: Sequence[Trace], profile: PhysicsProfile, seed: int) -> list[np.ndarray]:
     """Every trace replayed once under ``profile``: its step features, trace by trace."""
     from tumblebot.sim.env import TumblerEnv
@@ -295,9 +285,15 @@ def simulate_set(traces: Sequence[Trace], profile: PhysicsProfile, seed: int) ->
         env.close()
 
 
-def _run_job(job: tuple[dict[str, Any], int]) -> list[list[list[float]]]:
-    values, seed = job
-    return [f.tolist() for f in simulate_set(_traces, PhysicsProfile.from_json(values), seed)]
+def _traces_of(traces: tuple[Trace, ...]) -> tuple[Trace, ...]:
+    """A worker's state: the trace set it replays."""
+    return traces
+
+
+def _run_job(traces: tuple[Trace, ...], item: tuple[int, tuple[dict[str, Any], int]]
+             ) -> tuple[int, list[list[list[float]]]]:
+    n, (values, seed) = item
+    return n, [f.tolist() for f in simulate_set(traces, PhysicsProfile.from_json(values), seed)]
 
 
 class Simulator:
@@ -320,7 +316,7 @@ class Simulator:
                     self.done[item["key"]] = [np.array(f, dtype=float) for f in item["features"]]
                 except (json.JSONDecodeError, KeyError, TypeError):
                     continue  # a line cut short by a kill: simulated again
-        self._pool: Any = None
+        self._pool: WorkerPool[tuple[Trace, ...]] | None = None
         self.workers = workers
 
     def _key(self, profile: PhysicsProfile, seed: int) -> str:
@@ -335,15 +331,9 @@ class Simulator:
                 self.on_done(1)
         if todo:
             payload = [(jobs[i][0].to_json(), jobs[i][1]) for i, _ in todo]
-            results: Iterator[tuple[int, list[list[list[float]]]]]
-            if self.workers > 1:
-                if self._pool is None:
-                    self._pool = mp.get_context("forkserver").Pool(self.workers, initializer=_init_worker,
-                                                                    initargs=(self.traces,))
-                results = self._pool.imap_unordered(_indexed_job, list(enumerate(payload)))
-            else:
-                results = ((n, [f.tolist() for f in simulate_set(self.traces, *jobs[i])])
-                           for n, (i, _) in enumerate(todo))
+            if self._pool is None:
+                self._pool = WorkerPool(_traces_of, (self.traces,), self.workers)
+            results = self._pool.imap_unordered(_run_job, list(enumerate(payload)))
             cache = self.cache_path.open("a") if self.cache_path is not None else None
             try:
                 for n, features in results:
@@ -362,14 +352,8 @@ class Simulator:
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
+            self._pool.close()
             self._pool = None
-
-
-def _indexed_job(item: tuple[int, tuple[dict[str, Any], int]]) -> tuple[int, list[list[list[float]]]]:
-    n, job = item
-    return n, _run_job(job)
 
 
 # ----------------------------------------------------------------------------- the fit

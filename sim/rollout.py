@@ -20,8 +20,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from tumblebot.sim.errors import SimError
+from tumblebot.sim.goto import GotoController, check_navigation_task
 
 Design4 = tuple[float, float, float, float]
+StepCallback = Callable[[int, np.ndarray, np.ndarray, dict[str, Any]], None]
 
 
 class Actor(Protocol):
@@ -57,12 +59,13 @@ class _GaitActor:
         return np.array(self.gait(step, self.rng))
 
 
-class _GotoActor:
-    def __init__(self, task: str) -> None:
-        from tumblebot.sim.goto import GotoController, check_navigation_task
+class GotoActor:
+    """``goto`` (:mod:`tumblebot.sim.goto`): a new controller with its default settings, or
+    ``controller`` as it is (say, one with pinned settings, or one mid-episode whose memory
+    a planner's roll-out from a snapshot keeps: :func:`drive` does not reset it)."""
 
-        check_navigation_task(task)
-        self.goto = GotoController()
+    def __init__(self, controller: GotoController | None = None) -> None:
+        self.goto = controller if controller is not None else GotoController()
 
     def reset(self, seed: int, design: Design4) -> None:
         self.goto.reset()
@@ -78,7 +81,8 @@ def make_actor(kind: str, name: str, task: str) -> Actor:
     if kind == "gait":
         return _GaitActor(name)
     if kind == "goto":
-        return _GotoActor(task)
+        check_navigation_task(task)
+        return GotoActor()
     raise SimError(f"unknown controller kind {kind!r}")
 
 
@@ -91,21 +95,30 @@ class Outcome:
 
 
 def run_episode(env: Any, actor: Actor, seed: int, options: dict[str, Any] | None = None,
-                on_step: Callable[[int, np.ndarray, np.ndarray, dict[str, Any]], None] | None = None) -> Outcome:
+                on_step: StepCallback | None = None) -> Outcome:
     """Reset ``env`` with ``seed`` (and ``options``), drive it with ``actor`` to the end
     of the episode, and return the final-state reward and position. ``on_step(step,
     action, obs, info)`` sees every step, for callers that record the trajectory."""
     obs, _ = env.reset(seed=seed, options=options)
     actor.reset(seed, env.design.as_tuple())
-    info: dict[str, Any] = {}
-    for step in range(env.episode_steps):
-        action = actor.act(obs, step)
-        obs, _, terminated, truncated, info = env.step(action)
-        if on_step is not None:
-            on_step(step, action, obs, info)
-        if terminated or truncated:
-            break
+    info = drive(env, actor, obs, 0, on_step)
     if "final_R" not in info:
         raise SimError("the episode ended without a final state (terminated early?)")
     pos = info["final_position"]
     return Outcome(float(info["final_R"]), (float(pos[0]), float(pos[1]), float(pos[2])))
+
+
+def drive(env: Any, actor: Actor, obs: np.ndarray, step: int = 0,
+          on_step: StepCallback | None = None) -> dict[str, Any]:
+    """Drive ``env`` with ``actor`` from ``obs`` before step ``step`` to the end of the
+    episode (mid-episode too: a planner continues from a snapshot); returns the last
+    step's ``info``."""
+    info: dict[str, Any] = {}
+    for k in range(step, env.episode_steps):
+        action = actor.act(obs, k)
+        obs, _, terminated, truncated, info = env.step(action)
+        if on_step is not None:
+            on_step(k, action, obs, info)
+        if terminated or truncated:
+            break
+    return info

@@ -13,8 +13,6 @@ terrains, masses, friction, motor noise and latency, and a batch can be extended
 
 from __future__ import annotations
 
-import multiprocessing as mp
-import signal
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -26,6 +24,7 @@ from tumblebot.sim.controllers import Controller, episode_seed
 from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.pool import WorkerPool
 from tumblebot.sim.rollout import Actor, make_actor, run_episode
 from tumblebot.sim.tasks import get_task
 
@@ -60,23 +59,14 @@ class _Worker:
         self.envs.clear()
 
 
-_worker: _Worker | None = None  #: in a pool process
-
-
-def _init_worker(controllers: dict[str, Controller], servo: PhysicsProfile) -> None:
-    global _worker
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops cleanly
-    _worker = _Worker(controllers, servo)
-
-
-def _run_job(job: Job) -> Result:
-    assert _worker is not None, "pool process not initialised"
-    return _worker.run(job)
+def _run_job(worker: _Worker, job: Job) -> Result:
+    return worker.run(job)
 
 
 class EpisodeRunner:
-    """Runs episodes on any design; reuse it for many designs. The package's one worker
-    pool: :func:`tumblebot.sim.evaluate.evaluate` runs on it too.
+    """Runs episodes on any design; reuse it for many designs, on the package's one
+    worker pool (:class:`~tumblebot.sim.pool.WorkerPool`). :func:`tumblebot.sim.evaluate.evaluate`
+    runs on it too.
 
     Args:
         controllers: task name → what drives it: an ONNX policy path, or a
@@ -100,13 +90,7 @@ class EpisodeRunner:
         self.controllers = specs
         self.workers = workers
         self.episodes_run = 0
-        self._pool: Any = None
-        self._local: _Worker | None = None
-        if workers > 1:
-            self._pool = mp.get_context("forkserver").Pool(workers, initializer=_init_worker,
-                                                            initargs=(self.controllers, self.servo))
-        else:  # in this process, whose Ctrl-C handling is left alone
-            self._local = _Worker(self.controllers, self.servo)
+        self._pool: WorkerPool[_Worker] | None = WorkerPool(_Worker, (self.controllers, self.servo), workers)
 
     def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
             on_result: Callable[[], object] | None = None) -> dict[str, np.ndarray]:
@@ -127,11 +111,9 @@ class EpisodeRunner:
             raise SimError(f"episode range {start}..{stop} is empty or negative")
         jobs: list[Job] = [(t, design.as_tuple(), i, episode_seed(seed, i)) for t in names for i in range(start, stop)]
         out = {t: (np.full(stop - start, np.nan), np.full((stop - start, 3), np.nan)) for t in names}
-        results: Iterable[Result]
-        if self._local is not None:
-            results = map(self._local.run, jobs)
-        else:
-            results = self._pool.imap_unordered(_run_job, jobs, chunksize=max(1, len(jobs) // (4 * self.workers)))
+        if self._pool is None:
+            raise SimError("the episode runner is closed")
+        results = self._pool.imap_unordered(_run_job, jobs, chunksize=max(1, len(jobs) // (4 * self.workers)))
         for task, index, R, position in results:
             out[task][0][index - start] = R
             out[task][1][index - start] = position
@@ -142,12 +124,8 @@ class EpisodeRunner:
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
+            self._pool.close()
             self._pool = None
-        if self._local is not None:
-            self._local.close()
-            self._local = None
 
     def __enter__(self) -> EpisodeRunner:
         return self

@@ -28,7 +28,6 @@ predicts it does better.
 from __future__ import annotations
 
 import json
-import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,12 +35,19 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.sim.controllers import episode_seed
 from tumblebot.sim.design import Design
-from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.sim.goto import GotoConfig, GotoController
+from tumblebot.sim.observation import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.sim.physics import THESIS, PhysicsProfile
+from tumblebot.sim.pool import WorkerPool
+from tumblebot.sim.rollout import GotoActor, run_episode
 from tumblebot.training.config import TrainingError
 
 FORMAT = "tumblebot-goto-choice/1"
-_ENV: dict[str, Any] = {}
+#: how a sweep's episodes are seeded: record lines without it seeded each design's own
+#: episodes (an earlier tumblebot), and are not continued
+SEEDING = "episode_seed"
 
 
 def sweep_designs(count: int, seed: int) -> list[Design]:
@@ -55,46 +61,41 @@ def sweep_designs(count: int, seed: int) -> list[Design]:
     return out
 
 
-def _episode(job: tuple[tuple[float, ...], int, int, int]) -> tuple[float, float]:
-    """Final R of one nav-flat episode under goto's ``RESIDUAL_GOTO`` and ``DUAL_GOTO`` settings."""
+def _sweep_env(physics: PhysicsProfile) -> Any:
+    """A worker's state: one nav-flat environment under ``physics``, every design its own."""
     from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.goto import GotoConfig, GotoController
     from tumblebot.sim.randomization import Randomization
 
-    design, seed, index, episode = job
-    if "env" not in _ENV:  # one environment per worker
-        _ENV["env"] = TumblerEnv(task="nav-flat", randomization=Randomization(design=False))
-    env = _ENV["env"]
-    reset_seed = int(np.random.SeedSequence([seed, index, episode]).generate_state(1, dtype=np.uint32)[0])
-    out = []
-    for settings in (RESIDUAL_GOTO, DUAL_GOTO):
-        obs, _ = env.reset(seed=reset_seed, options={"design": Design.from_sequence(design)})
-        goto, info = GotoController(GotoConfig(**settings)), {}
-        for step in range(env.episode_steps):
-            obs, _, _, _, info = env.step(np.array(goto.act(obs, step)))
-        out.append(float(info["final_R"]))
-    return out[0], out[1]
+    return TumblerEnv(task="nav-flat", randomization=physics.randomization(Randomization(design=False)),
+                      **physics.env_kwargs())
 
 
-def _worker_init() -> None:
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the sweep between designs
+def _episode(env: Any, job: tuple[tuple[float, ...], int, int]) -> tuple[float, float]:
+    """Final R of episode ``index`` of seed ``seed`` on nav-flat under goto's
+    ``RESIDUAL_GOTO`` and ``DUAL_GOTO`` settings: the same episode (:func:`episode_seed`,
+    as every evaluation seeds them), so the two are paired, and every design sees the same
+    starts."""
+    design, seed, index = job
+    options = {"design": Design.from_sequence(design)}
+    first, second = (run_episode(env, GotoActor(GotoController(GotoConfig(**settings))), episode_seed(seed, index),
+                                 options=options).final_R for settings in (RESIDUAL_GOTO, DUAL_GOTO))
+    return first, second
 
 
 def sweep(designs: Sequence[Design], episodes: int, seed: int, workers: int, done: int = 0,
-          should_stop: Callable[[], bool] = lambda: False) -> Iterator[dict[str, Any]]:
+          should_stop: Callable[[], bool] = lambda: False,
+          physics: PhysicsProfile = THESIS) -> Iterator[dict[str, Any]]:
     """Each design's record from ``done`` on: its two mean final Rs and the paired
-    difference (second setting minus first) with its standard error."""
-    with multiprocessing.get_context("forkserver").Pool(workers, initializer=_worker_init) as pool:
+    difference (second setting minus first) with its standard error, under ``physics``."""
+    with WorkerPool(_sweep_env, (physics,), workers) as pool:
         for index in range(done, len(designs)):
             if should_stop():
                 return
             design = designs[index].as_tuple()
-            jobs = [(design, seed, index, e) for e in range(episodes)]
-            R = np.array(pool.map(_episode, jobs, chunksize=4))
+            R = np.array(pool.map(_episode, [(design, seed, e) for e in range(episodes)], chunksize=4))
             diff = R[:, 1] - R[:, 0]
             yield {"index": index, "design": list(design), "episodes": episodes, "seed": seed,
+                   "seeding": SEEDING, "physics": physics.digest(),
                    "goto": float(R[:, 0].mean()), "dual": float(R[:, 1].mean()),
                    "difference": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(episodes))}
 

@@ -386,7 +386,7 @@ def _choice(args: argparse.Namespace) -> int:
     import numpy as np
 
     from tumblebot.sim.design import Design
-    from tumblebot.training.choice import GotoChoice, read_sweep, sweep, sweep_designs
+    from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep, sweep_designs
     from tumblebot.training.config import TrainingError
 
     if args.choice_command == "fit":
@@ -396,16 +396,22 @@ def _choice(args: argparse.Namespace) -> int:
         print(choice.summary())
         return 0
     check_writable(args.out, "--out")
+    physics = profile_from_args(args)
     done = read_sweep(args.out) if args.out.exists() else []
     designs = sweep_designs(args.designs, args.seed)
     for k, record in enumerate(done):  # continue only the same sweep
-        if k >= len(designs) or record.get("seed") != args.seed or record.get("episodes") != args.episodes \
-                or not np.allclose(record["design"], designs[k].as_tuple()):
+        if record.get("seeding") != SEEDING:
+            raise TrainingError(f"{args.out} was swept by an earlier tumblebot, which seeded each design's "
+                                "episodes its own way: start a new file")
+        same = (k < len(designs) and record.get("seed") == args.seed and record.get("episodes") == args.episodes
+                and record.get("physics") == physics.digest() and np.allclose(record["design"], designs[k].as_tuple()))
+        if not same:
             raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
-                                f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed})")
+                                f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
+                                f"under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as out:
-        for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done)):
+        for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics):
             out.write(json.dumps(record) + "\n")
             out.flush()
             print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
@@ -429,6 +435,7 @@ def _add_choice_command(sub: Subcommands) -> None:
                    help="designs and episodes (default 3; keep it apart from evaluation seeds)")
     s.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     s.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
+    add_servo_arguments(s)
     f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
     f.add_argument("sweep", type=Path, help="the sweep's JSON-lines file")
     f.add_argument("-o", "--output", type=Path, required=True, help="the choice file (JSON) imitate --choice takes")

@@ -1,25 +1,12 @@
-"""Features computed from the thesis observation, inside the policy network.
+"""The policies' feature layer in torch, inside the policy network, and the training
+environments' observation wrapper.
 
-The policy's input stays exactly the thesis observation (position, quaternion, last
-command). This module turns it into quantities a small MLP can use without first
-learning quaternion algebra: the body's rotation matrix, and the vector to the origin
-expressed in the body frame (its direction and length). They are a deterministic function
-of the observation, written in torch, so they are part of the exported ONNX graph.
-
-Layout of the features (``FEATURE_NAMES``): position (3), rotation matrix row-major (9),
-goal vector in the body frame (3), its direction (3), planar distance to the origin (1),
-last command (2).
-
-A policy with the ``context`` input (:data:`tumblebot.sim.policy.LAYOUTS`) gets those
-features of the current and of the previous observation, then the design scaled by
-``1/DESIGN_SCALE``, the fraction of the episode left, and the step's planar displacement
-scaled the same way (``CONTEXT_FEATURE_NAMES``). A ``memory`` policy gets those, then
-goto's motion estimates (the step length scaled the same way, the two spin rates in rad;
-``MEMORY_FEATURE_NAMES``). A ``residual`` policy gets those, then goto's proposed action,
-each leg's command one-hot (``RESIDUAL_FEATURE_NAMES``); a ``dual`` policy then the second
-goto's action the same way and the design's reach ``l / r − 1`` (``DUAL_FEATURE_NAMES``).
-:class:`ContextObservation` builds any of these inputs inside the training environments
-with the same :class:`ObservationContext` the deployed policy uses.
+The features are declared, by name, in :mod:`tumblebot.sim.features` (which also computes
+them in NumPy for :class:`~tumblebot.sim.policy.OnnxPolicy`); here they are computed in
+torch, so they are part of the trained network and of every exported ONNX graph, and the
+policy's input stays the observation layout it was trained on.
+:class:`ContextObservation` builds any design-conditioned input inside the training
+environments with the same :class:`ObservationContext` the deployed policy uses.
 """
 
 from __future__ import annotations
@@ -32,35 +19,27 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from tumblebot.sim.observation import COMMAND, LAYOUTS, POSITION, QUATERNION, fields_slice
+from tumblebot.sim.features import (
+    CONTEXT_FEATURE_NAMES,
+    CURRENT,
+    DESIGN,
+    DESIGN_SCALE,
+    DIRECTION_SOFTENING,
+    DUAL_FEATURE_NAMES,
+    FEATURE_NAMES,
+    FEATURES,
+    MEMORY_FEATURE_NAMES,
+    PREVIOUS,
+    RESIDUAL_FEATURE_NAMES,
+    STEPS_LEFT,
+)
+from tumblebot.sim.observation import COMMAND, LAYOUTS, POSITION, QUATERNION
 from tumblebot.sim.policy import ObservationContext
 
-FEATURE_NAMES: tuple[str, ...] = (
-    "px", "py", "pz",
-    "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",
-    "goal_bx", "goal_by", "goal_bz",
-    "goal_dir_bx", "goal_dir_by", "goal_dir_bz",
-    "goal_distance",
-    "cmd_right", "cmd_left",
-)
-CONTEXT_FEATURE_NAMES: tuple[str, ...] = (
-    *FEATURE_NAMES, *(f"prev_{name}" for name in FEATURE_NAMES),
-    "design_x", "design_y", "design_z", "design_l", "steps_left", "moved_x", "moved_y",
-)
-MEMORY_FEATURE_NAMES: tuple[str, ...] = (*CONTEXT_FEATURE_NAMES, "memory_step_length", "memory_spin_positive",
-                                         "memory_spin_negative")
-RESIDUAL_FEATURE_NAMES: tuple[str, ...] = (*MEMORY_FEATURE_NAMES, *(f"goto_{leg}_{command}" for leg in ("right", "left")
-                                                                    for command in ("reverse", "stop", "forward")))
-DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_{command}" for leg in ("right", "left")
-                                                                  for command in ("reverse", "stop", "forward")),
-                                       "design_reach")
-_DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
-DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
-#: Where each part of a design-conditioned input lies, asked of the layouts by name
-_CURRENT = fields_slice("context", "px", "cmd_left")
-_DESIGN = fields_slice("context", "design_x", "design_l")
-_STEPS_LEFT = fields_slice("context", "steps_left", "steps_left")
-_PREVIOUS = fields_slice("context", "prev_px", "prev_cmd_left")
+__all__ = ["CONTEXT_FEATURE_NAMES", "DESIGN_SCALE", "DUAL_FEATURE_NAMES", "FEATURE_NAMES", "MEMORY_FEATURE_NAMES",
+           "RESIDUAL_FEATURE_NAMES", "ContextFeatures", "ContextObservation", "DualFeatures", "MemoryFeatures",
+           "ObservationFeatures", "ResidualFeatures", "TumblerFeaturesExtractor", "feature_names", "features_for",
+           "rotation_matrix"]
 
 
 def rotation_matrix(q: torch.Tensor) -> torch.Tensor:
@@ -84,7 +63,7 @@ class ObservationFeatures(nn.Module):
         to_goal = torch.cat([-position[:, 0:2], torch.zeros_like(position[:, 0:1])], dim=-1)
         goal_body = torch.bmm(rot.transpose(1, 2), to_goal.unsqueeze(-1)).squeeze(-1)
         distance = torch.linalg.vector_norm(to_goal, dim=-1, keepdim=True)
-        direction = goal_body / (distance + _DIRECTION_SOFTENING)
+        direction = goal_body / (distance + DIRECTION_SOFTENING)
         return torch.cat([position, rot.reshape(-1, 9), goal_body, direction, distance, obs[:, COMMAND]], dim=-1)
 
 
@@ -96,8 +75,8 @@ class ContextFeatures(nn.Module):
         self.thesis = ObservationFeatures()
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        current, previous = obs[:, _CURRENT], obs[:, _PREVIOUS]
-        design, steps_left = obs[:, _DESIGN], obs[:, _STEPS_LEFT]
+        current, previous = obs[:, CURRENT], obs[:, PREVIOUS]
+        design, steps_left = obs[:, DESIGN], obs[:, STEPS_LEFT]
         moved = (current[:, 0:2] - previous[:, 0:2]) / DESIGN_SCALE
         return torch.cat([self.thesis(current), self.thesis(previous), design / DESIGN_SCALE, steps_left, moved],
                          dim=-1)
@@ -146,15 +125,15 @@ class DualFeatures(ResidualFeatures):
         super().__init__(proposals=2)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        design = obs[:, _DESIGN]
+        design = obs[:, DESIGN]
         radius = 0.5 * torch.sqrt(design[:, 1:2] ** 2 + design[:, 2:3] ** 2).clamp_min(1e-3)
         return torch.cat([super().forward(obs), design[:, 3:4] / radius - 1.0], dim=-1)
 
 
 _FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
-    "thesis": (ObservationFeatures, FEATURE_NAMES), "context": (ContextFeatures, CONTEXT_FEATURE_NAMES),
-    "memory": (MemoryFeatures, MEMORY_FEATURE_NAMES), "residual": (ResidualFeatures, RESIDUAL_FEATURE_NAMES),
-    "dual": (DualFeatures, DUAL_FEATURE_NAMES),
+    "thesis": (ObservationFeatures, FEATURES["thesis"]), "context": (ContextFeatures, FEATURES["context"]),
+    "memory": (MemoryFeatures, FEATURES["memory"]), "residual": (ResidualFeatures, FEATURES["residual"]),
+    "dual": (DualFeatures, FEATURES["dual"]),
 }
 
 

@@ -28,8 +28,6 @@ its own that a vectorised one cannot lend.
 from __future__ import annotations
 
 import copy
-import multiprocessing
-import signal
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +37,8 @@ import numpy as np
 
 from tumblebot.sim.goto import GotoController
 from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.pool import WorkerPool
+from tumblebot.sim.rollout import GotoActor, drive, run_episode
 
 ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
 
@@ -70,28 +70,32 @@ class WorkerSpec:
     draws: int = 0  #: futures drawn anew per action (0: the episode's own, clairvoyant)
 
 
-_WORKER: dict[str, Any] = {}
+@dataclass
+class _Worker:
+    """A worker's state: its environment, the student (if any) and what to do."""
+
+    env: Any
+    student: Any
+    spec: WorkerSpec
+
+    def close(self) -> None:
+        self.env.close()
 
 
-def _init_worker(spec: WorkerSpec, student: str | None) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and closes the pool
+def _worker(spec: WorkerSpec, student: str | None) -> _Worker:
     from tumblebot.sim.env import TumblerEnv
     from tumblebot.sim.policy import OnnxPolicy
     from tumblebot.sim.randomization import Randomization
 
-    _WORKER["env"] = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
+    env = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
         tumbling_designs_only=spec.tumbling_designs_only)), state_weight=spec.state_weight,
         progress_weight=spec.progress_weight, **spec.physics.env_kwargs())
-    _WORKER["student"] = OnnxPolicy(Path(student)) if student else None
-    _WORKER["spec"] = spec
+    return _Worker(env, OnnxPolicy(Path(student)) if student else None, spec)
 
 
 def _finish(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> float:
-    info: dict[str, Any] = {}
-    while step < env.episode_steps:
-        obs, _, _, _, info = env.step(np.array(goto.act(obs, step)))
-        step += 1
-    return float(info["final_R"])
+    """Final R of the episode continued by ``goto`` (memory kept) from ``obs`` before ``step``."""
+    return float(drive(env, GotoActor(goto), obs, step)["final_R"])
 
 
 def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: int = 0,
@@ -128,50 +132,66 @@ def search_values(env: Any, goto: GotoController, obs: np.ndarray, step: int, dr
     return ALL_ACTIONS[int(np.argmax(values))], values  # the first of equals, as before
 
 
-def _episode(seed: int) -> EpisodeRecord:
-    env, student, spec = _WORKER["env"], _WORKER["student"], _WORKER["spec"]
-    obs, _ = env.reset(seed=seed)
-    goto = GotoController()
-    if student is not None:
-        student.reset(env.design.as_tuple())
-    inputs, labels, goto_labels, values, rewards = [], [], [], [], []
-    agreed = searched = 0
-    info: dict[str, Any] = {}
-    unsearched = np.full(len(ALL_ACTIONS), np.nan)
-    for step in range(env.episode_steps):
+class _Teacher:
+    """Drives an episode with the student (or, without one, the teacher's labels) and
+    records the student's inputs and the teacher's labels at every step: ``goto``'s
+    action, or in the last ``horizon`` steps the clairvoyant search's."""
+
+    def __init__(self, worker: _Worker, seed: int) -> None:
+        self.env, self.student, self.spec, self.seed = worker.env, worker.student, worker.spec, seed
+        self.goto = GotoController()
+        self.inputs: list[np.ndarray] = []
+        self.labels: list[tuple[int, int]] = []
+        self.goto_labels: list[tuple[int, int]] = []
+        self.values: list[np.ndarray] = []
+        self.agreed = self.searched = 0
+
+    def reset(self, seed: int, design: tuple[float, float, float, float]) -> None:
+        self.goto.reset()
+        if self.student is not None:
+            self.student.reset(design)
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        env, student = self.env, self.student
         x = student.context(obs) if student is not None else None  # the student's input, built as when deployed
-        if step >= env.episode_steps - spec.horizon:
-            label, scores = search_values(env, goto, obs, step, spec.draws, seed)
-            own = goto.act(obs, step)
-            searched += 1
+        if step >= env.episode_steps - self.spec.horizon:
+            label, scores = search_values(env, self.goto, obs, step, self.spec.draws, self.seed)
+            own = self.goto.act(obs, step)
+            self.searched += 1
         else:
-            label = own = goto.act(obs, step)
-            scores = unsearched
-        goto_labels.append(own)
-        values.append(scores)
+            label = own = self.goto.act(obs, step)
+            scores = np.full(len(ALL_ACTIONS), np.nan)
+        self.goto_labels.append(own)
+        self.values.append(scores)
         action = label
         if x is not None:
-            inputs.append(x)
+            self.inputs.append(x)
             chosen = student.act_batch(x[None])[0]
             action = (int(chosen[0]), int(chosen[1]))
-            agreed += int(action == label)
-        goto.taken(action)
-        labels.append(label)
-        obs, reward, _, _, info = env.step(np.array(action))
-        rewards.append(reward)
-    return EpisodeRecord(np.asarray(inputs, dtype=np.float32), np.asarray(labels, dtype=np.int64),
-                         np.asarray(goto_labels, dtype=np.int64), np.asarray(values, dtype=np.float32),
-                         np.asarray(rewards, dtype=np.float64), float(info["final_R"]), agreed, searched)
+            self.agreed += int(action == label)
+        self.goto.taken(action)
+        self.labels.append(label)
+        return np.array(action)
+
+
+def _episode(worker: _Worker, seed: int) -> EpisodeRecord:
+    teacher = _Teacher(worker, seed)
+    rewards: list[float] = []
+    outcome = run_episode(worker.env, teacher, seed,
+                          on_step=lambda step, action, obs, info: rewards.append(
+                              info["reward_state"] + info["reward_progress"]))
+    return EpisodeRecord(np.asarray(teacher.inputs, dtype=np.float32), np.asarray(teacher.labels, dtype=np.int64),
+                         np.asarray(teacher.goto_labels, dtype=np.int64),
+                         np.asarray(teacher.values, dtype=np.float32), np.asarray(rewards, dtype=np.float64),
+                         outcome.final_R, teacher.agreed, teacher.searched)
 
 
 def run_episodes(spec: WorkerSpec, student: Path, seeds: list[int], workers: int,
                  should_stop: Callable[[], bool]) -> Iterator[EpisodeRecord]:
     """The episodes of ``seeds``, driven by ``student`` and labelled by the teacher, as
     they finish (in any order); stops early when ``should_stop()``."""
-    context = multiprocessing.get_context("forkserver")
-    with context.Pool(workers, initializer=_init_worker, initargs=(spec, str(student))) as pool:
+    with WorkerPool(_worker, (spec, str(student)), workers) as pool:
         for record in pool.imap_unordered(_episode, seeds):
             yield record
             if should_stop():
-                pool.terminate()
                 return

@@ -13,8 +13,9 @@ from tumblebot.cli import main
 from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.design import Design
 from tumblebot.sim.goto import GotoConfig
+from tumblebot.sim.physics import THESIS
 from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
-from tumblebot.training.choice import GotoChoice, reach, read_sweep, sweep, sweep_designs
+from tumblebot.training.choice import SEEDING, GotoChoice, reach, read_sweep, sweep, sweep_designs
 from tumblebot.training.config import TrainingError
 from tumblebot.training.imitation import choice_teacher
 
@@ -110,9 +111,13 @@ def test_that_a_sweep_file_of_another_sweep_is_not_continued(tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "sweep.jsonl"
     first = sweep_designs(3, seed=3)[0]
-    out.write_text(json.dumps({"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3,
-                               "difference": 0.0, "se": 0.01}) + "\n")
-    before = out.read_text()
-    assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "4", "--out", str(out)]) == 2
-    assert "holds another sweep" in capsys.readouterr().err
-    assert out.read_text() == before
+    line = {"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3, "seeding": SEEDING,
+            "physics": THESIS.digest(), "difference": 0.0, "se": 0.01}
+    for other, message in (({"seed": 4}, "holds another sweep"),
+                           ({"physics": "0" * 16}, "holds another sweep"),
+                           ({"seeding": None}, "earlier tumblebot")):
+        out.write_text(json.dumps({**line, **other}) + "\n")
+        before = out.read_text()
+        assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "3", "--out", str(out)]) == 2
+        assert message in capsys.readouterr().err
+        assert out.read_text() == before
