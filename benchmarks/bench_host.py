@@ -30,10 +30,9 @@ import numpy as np
 
 from tumblebot.defaults import XI3_ROBOT
 from tumblebot.host.controller import ControllerConfig, TrialRunner
-from tumblebot.host.link import AgentClient, load_host_key, new_key
+from tumblebot.host.link import AgentClient, free_port, load_host_key, new_key
 from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
-from tumblebot.host.twin import free_port
 from tumblebot.sim.policy import OnnxPolicy, bundled_policy
 
 PUBLISHER = """

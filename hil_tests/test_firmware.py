@@ -15,7 +15,8 @@ from conftest import Link
 
 pytestmark = pytest.mark.hil
 
-NEUTRAL, FULL_FWD_RIGHT, FULL_FWD_LEFT = 1500.0, 2000.0, 1000.0  # left servo is mirrored
+NEUTRAL, FULL = float(P.NEUTRAL_US), float(P.FULL_SPEED_US)
+FULL_FWD_RIGHT, FULL_FWD_LEFT = NEUTRAL + FULL, NEUTRAL - FULL  # the left servo is mirrored
 
 
 def test_that_set_speeds_reaches_the_pins_within_50_ms(uno: EmulatedUno, link: Link) -> None:
@@ -25,7 +26,7 @@ def test_that_set_speeds_reaches_the_pins_within_50_ms(uno: EmulatedUno, link: L
     for right, left in ((1, 1), (-1, 0), (0, -1), (1, -1)):
         link.speeds(right, left)
         handed = uno.handed_us()
-        reached = uno.wait_for(NEUTRAL + 500 * right, NEUTRAL - 500 * left, tolerance=1.0)
+        reached = uno.wait_for(NEUTRAL + FULL * right, NEUTRAL - FULL * left, tolerance=1.0)
         assert 0 < reached.sim_us - handed < 50_000, f"({right}, {left}) took {(reached.sim_us - handed) / 1e3:.1f} ms"
         uno.wait_until_us(reached.sim_us + 100_000)
 
@@ -36,9 +37,9 @@ def test_that_each_pulse_is_the_commanded_width_to_the_timer_tick(uno: EmulatedU
     assert uno.widths() == pytest.approx((NEUTRAL, NEUTRAL), abs=0.25)  # at boot
     for right, left in ((1, 1), (-1, 0), (0, -1)):
         link.speeds(right, left)
-        reached = uno.wait_for(NEUTRAL + 500 * right, NEUTRAL - 500 * left, tolerance=1.0)
+        reached = uno.wait_for(NEUTRAL + FULL * right, NEUTRAL - FULL * left, tolerance=1.0)
         uno.wait_until_us(reached.sim_us + 60_000)  # three frames on, within the watchdog's 250 ms
-        assert uno.widths() == pytest.approx((NEUTRAL + 500 * right, NEUTRAL - 500 * left), abs=0.25)
+        assert uno.widths() == pytest.approx((NEUTRAL + FULL * right, NEUTRAL - FULL * left), abs=0.25)
 
 
 def test_that_the_watchdog_returns_both_servos_to_neutral_within_300_ms_every_time(uno: EmulatedUno,
@@ -89,7 +90,7 @@ def test_that_a_reset_mid_run_is_neutral_until_a_new_valid_command(uno: Emulated
     uno.wait_until_us(uno.handed_us() + 100_000)  # five servo frames after the firmware had it
     assert uno.widths() == pytest.approx((NEUTRAL, NEUTRAL), abs=1)
     link.speeds(-1, -1)
-    uno.wait_for(NEUTRAL - 500, NEUTRAL + 500, tolerance=1.0)
+    uno.wait_for(NEUTRAL - FULL, NEUTRAL + FULL, tolerance=1.0)
 
 
 def test_that_the_emulated_clock_neither_jumps_nor_freezes_across_a_reset(uno: EmulatedUno, link: Link) -> None:
@@ -183,7 +184,7 @@ def test_that_noise_and_mutated_frames_never_actuate_and_are_all_counted() -> No
         after = link.status(timeout=5.0)
         assert model.actuating == []
         widths = {round(e.width) for e in uno.events_since(start)}
-        assert widths <= {1500, 2000, 1000}, widths
+        assert widths <= {NEUTRAL, NEUTRAL + FULL, NEUTRAL - FULL}, widths
         assert after.crc_errors - before.crc_errors == model.crc
         assert after.other_drops - before.other_drops == model.refused
         assert after.frames_ok - before.frames_ok == 1  # only the GET_STATUS itself

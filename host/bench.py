@@ -46,7 +46,7 @@ TURN_SECONDS = 3.0  #: s each servo is told to turn, each way (a leg in the air 
 TURN_ATTEMPTS = 3  #: turns tried, each way, before a servo whose turn shows no roll is reported
 SETTLE_SECONDS = 1.0  #: s stopped before each observation
 STILL_SECONDS = 5.0  #: s the robot is watched while stopped
-NOMINAL_NEUTRAL_US = 1500  #: the neutral pulse of a standard continuous-rotation servo
+NOMINAL_NEUTRAL_US = P.NEUTRAL_US  #: the neutral pulse of a standard continuous-rotation servo (the firmware's default)
 #: How far a servo's own neutral may lie from nominal (the catalogue's servos stop within
 #: 1480–1520 µs, and a trim pot adjusts a few tens of µs): a trim farther off is an error.
 NEUTRAL_SPREAD_US = 50

@@ -259,3 +259,11 @@ def new_key(path: Path) -> None:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "wb") as fh:
         fh.write(os.urandom(P.KEY_SIZE))
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A loopback port nothing is bound to now (UDP by default), for a local agent, world
+    or pose source."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

@@ -35,14 +35,15 @@ from typing import Any
 import numpy as np
 
 from tumblebot.errors import TumblebotError
+from tumblebot.host.link import free_port
 from tumblebot.host.mocap import encode_pose_datagram
+from tumblebot.pi_agent import protocol as P
 from tumblebot.sim.design import Design
 from tumblebot.sim.evaluate import episode_seed
 from tumblebot.sim.physics import PhysicsProfile
 
 REPO = Path(__file__).resolve().parents[1]
-NEUTRAL_US = 1500.0
-FULL_SPEED_US = 500.0  #: pulse offset for full speed (1000/2000 µs)
+NEUTRAL_US, FULL_SPEED_US = float(P.NEUTRAL_US), float(P.FULL_SPEED_US)  #: the firmware's pulses (µs)
 DEADBAND_US = 10.0  #: continuous-rotation servos do not move within a few µs of neutral
 #: Physical servo mounting: the right servo turns its leg forward for longer pulses; the
 #: left one is mounted mirrored.
@@ -284,12 +285,6 @@ def _control(env: Any, data: bytes, seed: int, uno: Any, publish: dict[str, bool
 
 
 # ----------------------------------------------------------------------------- orchestration
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class TwinStack:
     """Starts the world and the agent as processes; the host is run against them."""
 

@@ -116,7 +116,7 @@ def _optimize(args: argparse.Namespace) -> int:
             recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
         print(f"study {name!r} in {redact_url(storage_url)}: {objective.describe()}, recipe {recipe.name} "
               f"({recipe.trials} trials, {recipe.startup} random then "
-              + ("a GP on R with e(w) exact" if recipe.name == "efficient" or objective.front else "GP-logEI")
+              + ("a GP on R with e(w) exact" if recipe.surrogate(objective) == "R" else "GP-logEI")
               + f", batch {recipe.batch}"
               + (f", screening {recipe.screen_batch}" if recipe.screen_batch != recipe.batch else "") + ")",
               file=sys.stderr)

@@ -73,6 +73,10 @@ READY_STRUCT = struct.Struct("<BBBB")
 STATUS_STRUCT = struct.Struct("<IbbBHHHHH")
 INFO_STRUCT = struct.Struct("<BBBBHbHb")
 ERROR_STRUCT = struct.Struct("<BH")
+#: The servo pulses the firmware drives (``tumble_config.h`` holds the same numbers; a test
+#: keeps them equal): neutral, the offset of full speed (1000 / 2000 µs), and the range a
+#: neutral trim may take.
+NEUTRAL_US, FULL_SPEED_US = 1500, 500
 NEUTRAL_MIN_US, NEUTRAL_MAX_US = 1300, 1700
 
 

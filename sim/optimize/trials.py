@@ -56,7 +56,7 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
             return base.value(trial.number, param_name, param_distribution.low, param_distribution.high)
 
     salted = int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0])
-    if objective is not None and objective.tasks and (recipe.name == "efficient" or objective.front):
+    if objective is not None and recipe.surrogate(objective) == "R":
         return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted,
                         margin=bool(objective.front))
     return optuna.samplers.GPSampler(seed=salted, independent_sampler=_Startup(seed=seed),

@@ -12,8 +12,7 @@ from pathlib import Path
 import pytest
 
 from tumblebot.host.emulator import EmulatedUno
-from tumblebot.host.link import AgentClient, load_host_key, new_key
-from tumblebot.host.twin import free_port
+from tumblebot.host.link import AgentClient, free_port, load_host_key, new_key
 
 
 def _agent(tmp_path: Path, serial_port: str) -> Iterator[tuple[str, Path]]:

@@ -97,8 +97,7 @@ def test_that_bench_check_fails_on_an_unplugged_arduino_naming_it(unplugged_agen
 
 
 def test_that_bench_check_fails_when_no_agent_answers(tmp_path: Path) -> None:
-    from tumblebot.host.link import new_key
-    from tumblebot.host.twin import free_port
+    from tumblebot.host.link import free_port, new_key
 
     key = tmp_path / "agent.key"
     new_key(key)

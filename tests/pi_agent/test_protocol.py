@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 from pathlib import Path
 
 import pytest
@@ -236,3 +237,12 @@ def test_info_vectors(row: list[str]) -> None:
     info = P.Info(int(protocol), int(major), int(minor), int(patch), (int(rn), int(ln)), (int(rd), int(ld)))
     assert info.pack() == unhex(payload) and P.Info.unpack(unhex(payload)) == info
     assert info.trims()["left"] == {"neutral_us": int(ln), "direction": int(ld)}
+
+
+def test_that_the_servo_pulses_are_the_firmwares() -> None:
+    """The pulse constants the twin, the agent and the firmware tests use are the ones
+    ``tumble_config.h`` compiles into the firmware."""
+    header = (VECTORS.parents[1] / "arduino" / "lib" / "tumbleproto" / "tumble_config.h").read_text()
+    constants = {name: int(value) for name, value in re.findall(r"constexpr uint16_t (k\w+) = (\d+);", header)}
+    assert (constants["kNeutralUs"], constants["kFullSpeedDeltaUs"]) == (P.NEUTRAL_US, P.FULL_SPEED_US)
+    assert (constants["kNeutralMinUs"], constants["kNeutralMaxUs"]) == (P.NEUTRAL_MIN_US, P.NEUTRAL_MAX_US)
