@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.physics import THESIS, PhysicsProfile
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
 HIDDEN: tuple[dict[str, Any], ...] = (
     {"name": "fast-weak-slippery", "free_speed": 4.5, "stall_torque": 0.4, "friction": 0.55,
@@ -98,8 +98,8 @@ def replay_prediction(holdout: Path, profile: PhysicsProfile, seeds: int = 8) ->
     the replays': (logged median, simulated median, p)."""
     from tumblebot.host.calibrate import load_trials
     from tumblebot.sim.calibration import replay
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     trials = load_trials([holdout])
     logged = np.array([np.hypot(t.track.x[-1] - t.track.x[0], t.track.y[-1] - t.track.y[0]) for t in trials])
@@ -155,8 +155,8 @@ def optimum(folder: Path, profile: Path, study: str, trials: int) -> tuple[float
 def objectives(design: tuple[float, ...], truth: Path, folder: Path, episodes: int) -> np.ndarray:
     """Per-episode objective R/(e+1)^3 of ``design`` under the true profile (seed 7, the same
     episodes for every design)."""
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.power import energy_per_metre
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.power import energy_per_metre
 
     csv = folder / f"decision-{'-'.join(f'{v:.5f}' for v in design)}.csv"
     if not csv.is_file():

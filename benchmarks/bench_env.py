@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import psutil
 
-from tumblebot.sim.env import MotorModel, TumblerEnv
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.tasks import TASKS
+from tumblebot.sim.world.env import MotorModel, TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
+from tumblebot.sim.world.tasks import TASKS
 
 FORWARD = np.array([2, 2])
 

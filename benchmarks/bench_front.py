@@ -31,12 +31,12 @@ from typing import Any
 import numpy as np
 from bench_optimize import FRESH_SEED, _design, _json, _p, run_recipe, study_config, verdict
 
-from tumblebot.sim.design import Design
+from tumblebot.sim.control.policy import bundled_policy
+from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import Objective, Recipe, format_xi, front_optima, open_storage, open_study
-from tumblebot.sim.policy import bundled_policy
-from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.report import paired_p
-from tumblebot.sim.runner import EpisodeRunner
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.power import energy_per_metre
 
 XIS = (0.0, 1.0, 3.0, math.inf)
 

@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.evaluate import episode_seed
-from tumblebot.sim.goto import GotoConfig, GotoController
+from tumblebot.sim.control.goto import GotoConfig, GotoController
+from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.evaluation.rollout import run_episode
 from tumblebot.sim.report import paired_p
-from tumblebot.sim.rollout import run_episode
+from tumblebot.sim.world.design import Design
 from tumblebot.training.card_eval import NAV_GRID
 
 SETTINGS = (2, 3)
@@ -47,8 +47,8 @@ def _init() -> None:
 
 
 def _episode(job: tuple[tuple[float, ...], int, int]) -> float:
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     w, spin_steps_left, seed = job
     if "env" not in _ENV:

@@ -33,12 +33,12 @@ from tumblebot.host.controller import ControllerConfig, TrialRunner
 from tumblebot.host.link import AgentClient, free_port, load_host_key, new_key
 from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
-from tumblebot.sim.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
 
 PUBLISHER = """
 import socket, sys, time
 from tumblebot.host.mocap import encode_pose_datagram
-from tumblebot.sim.frames import yaw_quaternion
+from tumblebot.sim.world.frames import yaw_quaternion
 port, seq = int(sys.argv[1]), 0
 with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
     while True:

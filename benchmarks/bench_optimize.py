@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import Design
+from tumblebot.sim.control.policy import bundled_policy, sha256_of
+from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import (
     Objective,
     Recipe,
@@ -46,10 +47,9 @@ from tumblebot.sim.optimize import (
     open_study,
     optimize,
 )
-from tumblebot.sim.policy import bundled_policy, sha256_of
-from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.report import paired_p
-from tumblebot.sim.runner import EpisodeRunner
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.power import energy_per_metre
 
 #: Seed of the fresh episodes every final design is re-evaluated on (no study uses it).
 FRESH_SEED = 10_000

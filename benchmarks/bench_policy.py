@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.policy import OnnxPolicy, bundled_policy
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 from bench_env import time_raw_episode  # same folder
 

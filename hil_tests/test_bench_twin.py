@@ -16,7 +16,7 @@ import pytest
 
 from tests.helpers import tb as run_tumblebot
 from tumblebot.host.twin import TwinStack
-from tumblebot.sim.design import Design
+from tumblebot.sim.world.design import Design
 
 pytestmark = [pytest.mark.hil, pytest.mark.slow]
 XI3 = Design(0.292, 0.129, 0.098, 0.136)

@@ -25,7 +25,7 @@ from tumblebot.host.mocap import open_source
 from tumblebot.host.triallog import read_trial
 from tumblebot.host.trials import TwinPlacer, load_index
 from tumblebot.host.twin import TwinStack
-from tumblebot.sim.design import Design
+from tumblebot.sim.world.design import Design
 
 pytestmark = [pytest.mark.hil, pytest.mark.slow]
 XI3 = Design(0.292, 0.129, 0.098, 0.136)

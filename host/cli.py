@@ -45,7 +45,7 @@ def say_status(message: str) -> None:
 
 
 def _policy_path(name: str) -> Path:
-    from tumblebot.sim.policy import PolicyError, bundled_policy
+    from tumblebot.sim.control.policy import PolicyError, bundled_policy
 
     path = bundled_policy(name) if not name.endswith(".onnx") else Path(name)
     if not path.is_file():
@@ -60,13 +60,13 @@ def _trial_policy(args: argparse.Namespace, design: Any, task: str) -> tuple[Any
         if args.policy is not None:
             raise TumblebotError("give --policy or --gait, not both")
         if args.gait != "goto":
-            from tumblebot.sim.gaits import GaitPolicy
+            from tumblebot.sim.control.gaits import GaitPolicy
 
             return GaitPolicy(args.gait, args.seed), args.gait  # an unknown gait is one error line
-        from tumblebot.sim.goto import GotoPolicy
+        from tumblebot.sim.control.goto import GotoPolicy
 
         return GotoPolicy(args.steps), "goto"
-    from tumblebot.sim.policy import OnnxPolicy
+    from tumblebot.sim.control.policy import OnnxPolicy
 
     policy_path = _policy_path(args.policy or "nav-flat")
     policy = OnnxPolicy(policy_path, task=task)
@@ -80,7 +80,7 @@ def _trial_run(args: argparse.Namespace) -> int:
     from tumblebot.host.live import LiveView, parse_listen
     from tumblebot.host.mocap import open_source
     from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
 
     design = Design.parse(args.design)
     task = "nav-flat"
@@ -178,8 +178,8 @@ def _interval(ci: list[float] | tuple[float, float]) -> str:
 def _twin_world(args: argparse.Namespace) -> int:
     from tumblebot.host.link import load_host_key, parse_address
     from tumblebot.host.twin import MOUNTING, ServoHardware, run_world
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.physics import PhysicsProfile
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.physics import PhysicsProfile
 
     right, left = (-MOUNTING[s] if s in args.reverse_servo else MOUNTING[s] for s in ("right", "left"))
     hardware = ServoHardware(neutral=args.servo_neutral, mounting=(right, left))
@@ -192,10 +192,10 @@ def _twin_world(args: argparse.Namespace) -> int:
 
 def _twin_run(args: argparse.Namespace) -> int:
     from tumblebot.host.twin import consistency, run_twin
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
 
     servo = _servo_of(args)
-    from tumblebot.sim.evaluate import Controller
+    from tumblebot.sim.evaluation.evaluate import Controller
 
     if args.policy != "excite":
         Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
@@ -207,7 +207,7 @@ def _twin_run(args: argparse.Namespace) -> int:
 
         parse_listen(args.foxglove)  # a bad address is refused before the twin starts
     if args.world_physics is not None:
-        from tumblebot.sim.physics import PhysicsProfile
+        from tumblebot.sim.world.physics import PhysicsProfile
 
         PhysicsProfile.load(str(args.world_physics))  # a bad profile is refused before the twin starts
     code = run_twin(args.out, args.points, args.per_point, args.radius, args.setpoint, args.heading,
@@ -232,7 +232,7 @@ def _twin_check(args: argparse.Namespace) -> int:
 
 
 def _servo_of(args: argparse.Namespace) -> Any:
-    from tumblebot.sim.physics import PhysicsProfile
+    from tumblebot.sim.world.physics import PhysicsProfile
 
     return PhysicsProfile.from_arguments(args.physics, args.motor_model, args.stall_torque)
 
@@ -441,8 +441,8 @@ def add_commands(sub: Any, positive_int: Any, check_writable: Any) -> None:
 def _calibrate(args: argparse.Namespace) -> int:
     from tumblebot.host.calibrate import describe, run_calibration
     from tumblebot.sim.calibration import Settings
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.physics import PhysicsProfile
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.physics import PhysicsProfile
 
     if args.output.suffix != ".json":
         raise TumblebotError(f"-o {args.output}: a physics profile is a .json file")

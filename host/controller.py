@@ -36,7 +36,7 @@ from tumblebot.errors import TumblebotError
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import Pose, PoseFilter, PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
-from tumblebot.sim.frames import to_task_frame
+from tumblebot.sim.world.frames import to_task_frame
 
 COMPLETE = "complete"
 
@@ -117,8 +117,8 @@ class TrialRunner:
         agent: the link to the Pi agent.
         policy: anything with ``act(obs) -> (a_right, a_left)`` in {0, 1, 2}; its
             ``reset()``, if it has one, is called at the start of every trial (an
-            :class:`~tumblebot.sim.policy.OnnxPolicy` conditioned on the design is bound
-            to it first, :meth:`~tumblebot.sim.policy.OnnxPolicy.bind_design`).
+            :class:`~tumblebot.sim.control.policy.OnnxPolicy` conditioned on the design is bound
+            to it first, :meth:`~tumblebot.sim.control.policy.OnnxPolicy.bind_design`).
         setpoint: lab-frame goal ``(x, y)``; heading: lab-frame direction (rad) that
             becomes the task frame's +x.
     """

@@ -29,8 +29,8 @@ from tumblebot.errors import TumblebotError
 from tumblebot.host.controller import COMPLETE, ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.mocap import PoseSource
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
-from tumblebot.sim.design import Design
-from tumblebot.sim.stats import mean_ci95
+from tumblebot.sim.evaluation.stats import mean_ci95
+from tumblebot.sim.world.design import Design
 
 PLAN_VERSION = 1
 
@@ -288,8 +288,8 @@ def make_plan(setpoint: tuple[float, float], heading: float, radius: float, poin
         raise TrialError("--points and --per-point must be at least 1")
     if not all(math.isfinite(v) for v in (*setpoint, heading)):
         raise TrialError("the setpoint and heading must be finite numbers")
-    from tumblebot.sim.gaits import GAITS
-    from tumblebot.sim.policy import sha256_of
+    from tumblebot.sim.control.gaits import GAITS
+    from tumblebot.sim.control.policy import sha256_of
 
     digest = "" if str(policy) == "goto" or str(policy) in GAITS else sha256_of(Path(policy))
     return TrialPlan(setpoint, heading, radius, points, per_point, task, str(policy), digest,
@@ -307,7 +307,7 @@ class SetSummary:
 
 
 def summarize(folder: Path) -> SetSummary:
-    from tumblebot.sim.power import energy_per_metre
+    from tumblebot.sim.world.power import energy_per_metre
 
     plan_path = folder / "plan.json"
     if not plan_path.exists():

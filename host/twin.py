@@ -38,9 +38,9 @@ from tumblebot.errors import TumblebotError
 from tumblebot.host.link import free_port
 from tumblebot.host.mocap import encode_pose_datagram
 from tumblebot.pi_agent import protocol as P
-from tumblebot.sim.design import Design
-from tumblebot.sim.evaluate import episode_seed
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import PhysicsProfile
 
 REPO = Path(__file__).resolve().parents[1]
 NEUTRAL_US, FULL_SPEED_US = float(P.NEUTRAL_US), float(P.FULL_SPEED_US)  #: the firmware's pulses (µs)
@@ -245,8 +245,8 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
 
 
 def _world_env(design: Design, servo: PhysicsProfile | None, physics: PhysicsProfile | None) -> Any:
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     if physics is not None:  # a hidden world: its latency comes on top of the chain's own
         return TumblerEnv(task="nav-flat", design=design, randomization=physics.randomization(Randomization(
@@ -429,10 +429,10 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: Physics
     the final errors grouped by trial, in the index's order.
     """
     from tumblebot.host.trials import TrialPlan, load_index
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.frames import to_task_frame, yaw_quaternion
-    from tumblebot.sim.randomization import Randomization
-    from tumblebot.sim.rollout import make_actor, run_episode
+    from tumblebot.sim.evaluation.rollout import make_actor, run_episode
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.frames import to_task_frame, yaw_quaternion
+    from tumblebot.sim.world.randomization import Randomization
 
     plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
     index = load_index(folder)

@@ -1,8 +1,17 @@
-"""Simulation: the parametric tumbler, its four tasks, the power model and the objective.
+"""Simulation, in rooms with one-way arrows (checked by ``lint-imports``):
 
-Pure modules (``design``, ``constants``, ``mass``, ``power``, ``objective``, ``tasks``,
-``gaits``, ``frames``) import numpy/scipy only; ``robot``, ``world`` and ``env`` import
-PyBullet. The host may use the pure ones without pulling PyBullet in.
+* :mod:`~tumblebot.sim.world`: the robot, its tasks, the physics profile, the environment;
+* :mod:`~tumblebot.sim.control`: gaits, ``goto``, ONNX policies and their feature layer;
+* :mod:`~tumblebot.sim.evaluation`: the episode loop, the worker pool, evaluation, the score;
+* :mod:`~tumblebot.sim.optimize` and :mod:`~tumblebot.sim.report`: the design study and its report;
+* :mod:`~tumblebot.sim.hardware`: the fabrication package; ``calibration``: a physics
+  profile fitted to trial logs;
+* ``observation`` (the layouts, shared by the world and control) and ``errors``;
+* the commands' handlers: ``commands``, ``optimize_command``, ``report_command``,
+  ``physics_command``, ``demo``.
+
+The world's pure modules import numpy/scipy only; the host may use them without pulling
+PyBullet in.
 
 Importing this package registers the four tasks with Gymnasium.
 """
@@ -17,11 +26,11 @@ def _register_envs() -> None:
         import gymnasium
     except ImportError:  # an install without the sim extra
         return
-    from tumblebot.sim.tasks import TASKS
+    from tumblebot.sim.world.tasks import TASKS
 
     for task in TASKS.values():
         if task.env_id not in gymnasium.registry:
-            gymnasium.register(id=task.env_id, entry_point="tumblebot.sim.env:TumblerEnv",
+            gymnasium.register(id=task.env_id, entry_point="tumblebot.sim.world.env:TumblerEnv",
                                kwargs={"task": task.name}, max_episode_steps=None)
 
 

@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.physics import MAX_LATENCY, PhysicsProfile
-from tumblebot.sim.pool import WorkerPool
+from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.world.physics import MAX_LATENCY, PhysicsProfile
 
 RECORD_HZ = 60  #: how often a replay records the body's pose (the mocap runs at about 100 Hz)
 MIN_STEPS = 6  #: logged steps a kind of command needs before its statistics count
@@ -126,11 +126,11 @@ def command_class(right: int, left: int) -> str:
 
 # ----------------------------------------------------------------------------- replay
 def replay(env: Any, trace: Trace, seed: int) -> Track:
-    """Run ``trace`` open loop in ``env`` (a :class:`~tumblebot.sim.env.TumblerEnv` built
+    """Run ``trace`` open loop in ``env`` (a :class:`~tumblebot.sim.world.env.TumblerEnv` built
     for the candidate profile): reset at the trace's start (its seed draws the legs'
     angles, masses, friction and motor noise), then each command from its time plus a
     latency drawn from the profile's range."""
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
 
     env.reset(seed=seed, options={"design": Design(*trace.design), "start_xy": trace.start[:2],
                                   "start_yaw": trace.start[2]})
@@ -218,7 +218,7 @@ class Parameter:
         if self.name == "free_speed":
             return v / 2.0, v * 2.0
         if self.name == "stall_torque":
-            from tumblebot.sim import constants as C
+            from tumblebot.sim.world import constants as C
 
             return v / 3.0, min(v * 3.0, C.MAX_STALL_TORQUE)
         if self.name == "friction":
@@ -273,8 +273,8 @@ def profile_at(prior: PhysicsProfile, values: dict[str, float], name: str | None
 # ----------------------------------------------------------------------------- simulating
 def simulate_set(traces: Sequence[Trace], profile: PhysicsProfile, seed: int) -> list[np.ndarray]:
     """Every trace replayed once under ``profile``: its step features, trace by trace."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
                      **profile.env_kwargs())

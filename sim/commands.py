@@ -22,14 +22,14 @@ from tumblebot.cliargs import (
 )
 from tumblebot.defaults import XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.physics import profile_from_args
-from tumblebot.sim.tasks import TASK_CHOICES
+from tumblebot.sim.world.physics import profile_from_args
+from tumblebot.sim.world.tasks import TASK_CHOICES
 
 
 def _power(args: argparse.Namespace) -> int:
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.mass import DEFAULT_MASS_MODEL
-    from tumblebot.sim.power import power_breakdown
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL
+    from tumblebot.sim.world.power import power_breakdown
 
     w = Design(args.x, args.y, args.z, args.l, allow_out_of_bounds=args.allow_out_of_bounds)
     b = power_breakdown(w)
@@ -55,8 +55,8 @@ def _power(args: argparse.Namespace) -> int:
 
 
 def _urdf(args: argparse.Namespace) -> int:
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.robot import RobotModel, to_urdf
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.robot import RobotModel, to_urdf
 
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
     if args.output is not None and str(args.output) != "-":
@@ -74,10 +74,10 @@ def _urdf(args: argparse.Namespace) -> int:
 def _sim(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.episode import run_gait_episode, write_animation
-    from tumblebot.sim.randomization import Randomization
-    from tumblebot.sim.tasks import get_task
+    from tumblebot.sim.evaluation.episode import run_gait_episode, write_animation
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.randomization import Randomization
+    from tumblebot.sim.world.tasks import get_task
 
     task = get_task(args.task)  # run_gait_episode checks the gait (or goto) for the task
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
@@ -119,10 +119,10 @@ def _demo(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     import json
 
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.evaluate import Controller, evaluate
-    from tumblebot.sim.policy import PolicyError, bundled_policy
-    from tumblebot.sim.tasks import get_task
+    from tumblebot.sim.control.policy import PolicyError, bundled_policy
+    from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.tasks import get_task
 
     task = get_task(args.task)
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)

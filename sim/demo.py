@@ -9,11 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TextIO
 
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.episode import run_gait_episode, write_animation
-from tumblebot.sim.power import power_breakdown
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.tasks import TASKS
+from tumblebot.sim.evaluation.episode import run_gait_episode, write_animation
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.power import power_breakdown
+from tumblebot.sim.world.randomization import Randomization
+from tumblebot.sim.world.tasks import TASKS
 
 #: Thesis Table 3.1 e column (W/m), keyed like THESIS_ROBOTS.
 THESIS_E: dict[str, float] = {"0": 6.05, "1": 6.00, "3": 5.20, "inf": 3.76}
@@ -23,8 +23,8 @@ DEMO_GAITS: dict[str, str] = {"nav-flat": "alternate", "nav-terrain": "alternate
 
 def _bundled_policies(out: TextIO, robot: Design, seed: int, episodes: int = 12) -> None:
     """The bundled ONNX policies on the same robot, against the same scripted gaits."""
-    from tumblebot.sim.evaluate import Controller, evaluate
-    from tumblebot.sim.policy import bundled_policy
+    from tumblebot.sim.control.policy import bundled_policy
+    from tumblebot.sim.evaluation.evaluate import Controller, evaluate
 
     rows = []
     for name in TASKS:

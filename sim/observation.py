@@ -10,11 +10,11 @@ takes one of five layouts (:data:`LAYOUTS`):
   (the current ones again before the first step). A policy with this input is told the
   body it drives, how much time is left, and what its last action did.
 * ``memory``: ``context``, then ``goto``'s memory of the episode (:data:`MEMORY_FIELDS`,
-  :class:`tumblebot.sim.goto.MotionMemory`): the running estimates of a drive step's
+  :class:`tumblebot.sim.control.goto.MotionMemory`): the running estimates of a drive step's
   length (m) and of each spin's yaw change (rad), learnt from every step so far, with the
   action of each step read from the command the next observation carries.
 * ``residual``: ``memory``, then the action ``goto`` itself would take now
-  (:data:`RESIDUAL_FIELDS`, each leg's command 0/1/2; :class:`tumblebot.sim.goto.GotoController`
+  (:data:`RESIDUAL_FIELDS`, each leg's command 0/1/2; :class:`tumblebot.sim.control.goto.GotoController`
   with the settings in :data:`RESIDUAL_GOTO`, told every step the action actually taken).
   A policy with this input starts from the hand-written controller's choice and learns
   where to deviate from it (residual policy learning).

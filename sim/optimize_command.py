@@ -17,7 +17,7 @@ from tumblebot.cliargs import (
     seed_type,
 )
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.physics import profile_from_args
+from tumblebot.sim.world.physics import profile_from_args
 
 
 def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, Any], Any, str, str]:
@@ -25,6 +25,7 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
     objective, recipe, servo, controllers, study config, study name and storage URL."""
     import os
 
+    from tumblebot.sim.control.policy import sha256_of
     from tumblebot.sim.optimize import (
         DEFAULT_STORAGE,
         Objective,
@@ -37,7 +38,6 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
         parse_xi_list,
         study_controllers,
     )
-    from tumblebot.sim.policy import sha256_of
 
     if args.front is not None and args.xi is not None:
         raise OptimizeError("give --xi or --front, not both (a front study serves every ξ of its list)")
@@ -90,6 +90,7 @@ def _optimize_bar(trials: int, quiet: bool) -> tuple[Any, Callable[[Any], None]]
 def _optimize(args: argparse.Namespace) -> int:
     import dataclasses
 
+    from tumblebot.sim.evaluation.runner import EpisodeRunner
     from tumblebot.sim.optimize import (
         StopFlag,
         StopRequested,
@@ -102,7 +103,6 @@ def _optimize(args: argparse.Namespace) -> int:
         running_trials,
     )
     from tumblebot.sim.optimize.storage import redact_url
-    from tumblebot.sim.runner import EpisodeRunner
 
     objective, recipe, servo, controllers, config, name, storage_url = _optimize_plan(args)
     stop = StopFlag()

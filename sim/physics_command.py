@@ -8,7 +8,7 @@ from typing import Any
 
 
 def _show(args: argparse.Namespace) -> int:
-    from tumblebot.sim.physics import PhysicsProfile
+    from tumblebot.sim.world.physics import PhysicsProfile
 
     profile = PhysicsProfile.load(args.profile)
     if args.servo is not None:
@@ -35,6 +35,6 @@ def add_command(sub: Any) -> None:
     psub = p.add_subparsers(dest="physics_command", required=True, metavar="{show}")
     s = psub.add_parser("show", help="print a profile", description="Print a physics profile and its digest.")
     s.add_argument("profile", help="a built-in profile (thesis) or a JSON file")
-    s.add_argument("--servo", help="with this catalogue servo's free speed and stall torque (sim/servos.json)")
+    s.add_argument("--servo", help="with this catalogue servo's free speed and stall torque (sim/world/servos.json)")
     s.add_argument("--json", action="store_true", help="print the profile as one JSON object, with its digest")
     s.set_defaults(func=_show)

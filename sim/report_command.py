@@ -14,7 +14,7 @@ from tumblebot.cliargs import (
     stall_torque,
 )
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.physics import profile_from_args
+from tumblebot.sim.world.physics import profile_from_args
 
 
 def _report(args: argparse.Namespace) -> int:

@@ -15,18 +15,18 @@ from tumblebot.host.controller import ControllerConfig
 from tumblebot.host.triallog import TrialLogWriter, write_json_atomic
 from tumblebot.host.trials import make_plan, open_trial_set
 from tumblebot.sim.calibration import Trace, replay
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.frames import yaw_quaternion
-from tumblebot.sim.gaits import EXCITATION
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.control.gaits import EXCITATION
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.frames import yaw_quaternion
+from tumblebot.sim.world.physics import PhysicsProfile
 
 XI3 = THESIS_ROBOTS["3"]
 
 
 def write_set(folder: Path, hidden: PhysicsProfile, trials: int, seed: int = 0, design: Design = XI3) -> Path:
     """A finished identification trial set of ``trials`` trials on 5 start points."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     plan = make_plan((0.0, 0.0), 0.0, 1.0, 5, max(1, trials // 5), "nav-flat", "excite", design, seed,
                      ControllerConfig())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tumblebot.sim.design import Design
+from tumblebot.sim.world.design import Design
 
 
 @pytest.fixture

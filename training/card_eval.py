@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller, EvalResult, evaluate
-from tumblebot.sim.gaits import GAITS
-from tumblebot.sim.goto import NAVIGATION_TASKS
-from tumblebot.sim.physics import THESIS, PhysicsProfile
-from tumblebot.sim.policy import card_path
+from tumblebot.sim.control.gaits import GAITS
+from tumblebot.sim.control.goto import NAVIGATION_TASKS
+from tumblebot.sim.control.policy import card_path
+from tumblebot.sim.evaluation.evaluate import Controller, EvalResult, evaluate
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
 XI3_ROBOT = THESIS_ROBOTS["3"]
 

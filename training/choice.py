@@ -5,8 +5,8 @@ threshold fitted to its result, the teacher of the ``dual`` navigation policy.
 (``reports/policy-headroom/README.md``): ``turn_tolerance`` 0.3 with ``spin_steps_left``
 4 gains up to +0.04 mean final R on the thesis's robots and on bodies with medium legs,
 and costs up to 0.03 on bodies with short legs. A ``dual`` policy
-(:data:`tumblebot.sim.policy.LAYOUTS`) is shown the action of ``goto`` under both settings
-(:data:`~tumblebot.sim.policy.RESIDUAL_GOTO` and :data:`~tumblebot.sim.policy.DUAL_GOTO`)
+(:data:`tumblebot.sim.control.policy.LAYOUTS`) is shown the action of ``goto`` under both settings
+(:data:`~tumblebot.sim.observation.RESIDUAL_GOTO` and :data:`~tumblebot.sim.observation.DUAL_GOTO`)
 and the design; its teacher follows the second setting on the bodies where this module
 predicts it does better.
 
@@ -35,13 +35,13 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.controllers import episode_seed
-from tumblebot.sim.design import Design
-from tumblebot.sim.goto import GotoConfig, GotoController
+from tumblebot.sim.control.controllers import episode_seed
+from tumblebot.sim.control.goto import GotoConfig, GotoController
+from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
 from tumblebot.sim.observation import DUAL_GOTO, RESIDUAL_GOTO
-from tumblebot.sim.physics import THESIS, PhysicsProfile
-from tumblebot.sim.pool import WorkerPool
-from tumblebot.sim.rollout import GotoActor, run_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 from tumblebot.training.config import TrainingError
 
 FORMAT = "tumblebot-goto-choice/1"
@@ -63,8 +63,8 @@ def sweep_designs(count: int, seed: int) -> list[Design]:
 
 def _sweep_env(physics: PhysicsProfile) -> Any:
     """A worker's state: one nav-flat environment under ``physics``, every design its own."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     return TumblerEnv(task="nav-flat", randomization=physics.randomization(Randomization(design=False)),
                       **physics.env_kwargs())

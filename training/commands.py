@@ -27,8 +27,8 @@ from tumblebot.cliargs import (
 )
 from tumblebot.defaults import OBSERVATION_LAYOUTS
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.physics import profile_from_args
-from tumblebot.sim.tasks import TASK_CHOICES
+from tumblebot.sim.world.physics import profile_from_args
+from tumblebot.sim.world.tasks import TASK_CHOICES
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -42,7 +42,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _train_run(args: argparse.Namespace) -> int:
-    from tumblebot.sim.tasks import get_task
+    from tumblebot.sim.world.tasks import get_task
 
     run_dir: Path | None = args.run_dir
     if args.resume:
@@ -125,7 +125,7 @@ def _inherited(init_from: Path | None) -> dict[str, Any]:
 
 
 def _imitate(args: argparse.Namespace) -> int:
-    from tumblebot.sim.goto import check_navigation_task
+    from tumblebot.sim.control.goto import check_navigation_task
     from tumblebot.training.ppo import TrainingInterrupted
 
     if args.refine is not None:
@@ -219,7 +219,7 @@ def _lineage_record(run: Path, steps: int) -> list[dict[str, Any]]:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from tumblebot.sim.tasks import get_task, same_goal
+    from tumblebot.sim.world.tasks import get_task, same_goal
     from tumblebot.training.export import export_onnx, load_run, wall_seconds_at, write_card
 
     if args.output.suffix != ".onnx":
@@ -254,7 +254,7 @@ def _export(args: argparse.Namespace) -> int:
     write_card(args.output, task.name, int(model.num_timesteps), config, extra)
     print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
     if args.eval_episodes > 0:
-        from tumblebot.sim.policy import card_path
+        from tumblebot.sim.control.policy import card_path
         from tumblebot.training.card_eval import card_evaluation
 
         evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous)
@@ -385,7 +385,7 @@ def _choice(args: argparse.Namespace) -> int:
     teacher's rule fitted to it (:mod:`tumblebot.training.choice`)."""
     import numpy as np
 
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
     from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep, sweep_designs
     from tumblebot.training.config import TrainingError
 

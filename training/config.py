@@ -9,11 +9,11 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.constants import STALL_TORQUE
+from tumblebot.sim.control.policy import LAYOUTS
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.policy import LAYOUTS
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.world.constants import STALL_TORQUE
+from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.sim.world.randomization import Randomization
 
 
 class TrainingError(TumblebotError):
@@ -37,7 +37,7 @@ class TrainConfig:
         net_arch: hidden layer sizes of the policy and value MLPs (separate networks).
         state_weight, progress_weight: the environment's reward shaping.
         tumbling_designs_only: draw training designs only among those whose legs can tumble
-            the body (:class:`~tumblebot.sim.randomization.Randomization`); off in the
+            the body (:class:`~tumblebot.sim.world.randomization.Randomization`); off in the
             runs behind the bundled policies except where their card's config says so.
         init_from: checkpoint whose policy and value weights started this run (a warm
             start from another task's run, ``tumblebot train --init-from``), or None.
@@ -46,10 +46,10 @@ class TrainConfig:
             ``"context"`` (those plus the design, the steps left and the previous
             observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
             ``"residual"`` (``memory`` plus goto's proposed action) or ``"dual"``
-            (``residual`` plus a second goto's, :data:`tumblebot.sim.policy.DUAL_GOTO`;
-            :data:`tumblebot.sim.policy.LAYOUTS`).
+            (``residual`` plus a second goto's, :data:`tumblebot.sim.observation.DUAL_GOTO`;
+            :data:`tumblebot.sim.control.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
-            :mod:`tumblebot.sim.env`); recorded in the model card, and a policy is not used
+            :mod:`tumblebot.sim.world.env`); recorded in the model card, and a policy is not used
             under another servo unless asked to.
         design: train on this one body ``[x, y, z, l]`` (metres) instead of a new design
             every episode: a policy retrained on a chosen robot (the reproduction's
@@ -82,11 +82,11 @@ class TrainConfig:
     init_from_steps: int = 0
     design: list[float] | None = None
     #: the whole physics profile when it differs from ``thesis`` in more than the servo
-    #: above (:meth:`tumblebot.sim.physics.PhysicsProfile.as_fields`); None for runs before profiles
+    #: above (:meth:`tumblebot.sim.world.physics.PhysicsProfile.as_fields`); None for runs before profiles
     physics: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        from tumblebot.sim.tasks import get_task
+        from tumblebot.sim.world.tasks import get_task
 
         get_task(self.task)
         _check_design(self.design)
@@ -155,8 +155,8 @@ class TrainConfig:
 
 def _check_design(design: object) -> None:
     """A fixed training design: None, or ``[x, y, z, l]`` within the bounds."""
-    from tumblebot.sim.design import Design
     from tumblebot.sim.errors import DesignError
+    from tumblebot.sim.world.design import Design
 
     if design is None:
         return

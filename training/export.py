@@ -22,9 +22,9 @@ import torch
 from stable_baselines3 import PPO
 from torch import nn
 
-from tumblebot.sim.physics import THESIS
-from tumblebot.sim.policy import ACTION_LAYOUT, LAYOUTS, card_path, sha256_of
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.control.policy import ACTION_LAYOUT, LAYOUTS, card_path, sha256_of
+from tumblebot.sim.world.physics import THESIS
+from tumblebot.sim.world.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import feature_names
 
@@ -38,12 +38,12 @@ OBSERVATION_NOTES = {
                "commands the observations carry); OnnxPolicy builds it from the thesis observation and the "
                "design given at reset"),
     "residual": ("the memory observation, then the action goto would take now (each leg's command 0/1/2; "
-                 "goto with the settings pinned in tumblebot.sim.policy.RESIDUAL_GOTO, told the action actually "
-                 "taken every step): the policy learns where to deviate from the hand-written controller; "
+                 "goto with the settings pinned in tumblebot.sim.observation.RESIDUAL_GOTO, told the action "
+                 "actually taken every step): the policy learns where to deviate from the hand-written controller; "
                  "OnnxPolicy builds it from the thesis observation and the design given at reset"),
     "dual": ("the residual observation, then the action a second goto would take now (the settings pinned in "
-             "tumblebot.sim.policy.DUAL_GOTO, also told the action actually taken every step): which of the two "
-             "suits the body is learnt from the design; OnnxPolicy builds it from the thesis observation and the "
+             "tumblebot.sim.observation.DUAL_GOTO, also told the action actually taken every step): which of the "
+             "two suits the body is learnt from the design; OnnxPolicy builds it from the thesis observation and the "
              "design given at reset"),
 }
 

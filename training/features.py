@@ -1,8 +1,8 @@
 """The policies' feature layer in torch, inside the policy network, and the training
 environments' observation wrapper.
 
-The features are declared, by name, in :mod:`tumblebot.sim.features` (which also computes
-them in NumPy for :class:`~tumblebot.sim.policy.OnnxPolicy`); here they are computed in
+The features are declared, by name, in :mod:`tumblebot.sim.control.features` (which also computes
+them in NumPy for :class:`~tumblebot.sim.control.policy.OnnxPolicy`); here they are computed in
 torch, so they are part of the trained network and of every exported ONNX graph, and the
 policy's input stays the observation layout it was trained on.
 :class:`ContextObservation` builds any design-conditioned input inside the training
@@ -19,7 +19,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from tumblebot.sim.features import (
+from tumblebot.sim.control.features import (
     CONTEXT_FEATURE_NAMES,
     CURRENT,
     DESIGN,
@@ -33,8 +33,8 @@ from tumblebot.sim.features import (
     RESIDUAL_FEATURE_NAMES,
     STEPS_LEFT,
 )
+from tumblebot.sim.control.policy import ObservationContext
 from tumblebot.sim.observation import COMMAND, LAYOUTS, POSITION, QUATERNION
-from tumblebot.sim.policy import ObservationContext
 
 __all__ = ["CONTEXT_FEATURE_NAMES", "DESIGN_SCALE", "DUAL_FEATURE_NAMES", "FEATURE_NAMES", "MEMORY_FEATURE_NAMES",
            "RESIDUAL_FEATURE_NAMES", "ContextFeatures", "ContextObservation", "DualFeatures", "MemoryFeatures",

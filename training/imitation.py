@@ -1,7 +1,7 @@
 """Imitation of the ``goto`` controller (behaviour cloning with DAgger): PPO's warm start.
 
 PPO from random weights needs millions of steps to find the "turn, drive, stop" pattern
-that :mod:`tumblebot.sim.goto` writes down in a page. So a navigation policy first learns
+that :mod:`tumblebot.sim.control.goto` writes down in a page. So a navigation policy first learns
 to do what ``goto`` would, then PPO (``tumblebot train --init-from``) improves on it.
 
 DAgger (Ross et al., 2011): iteration 0 lets ``goto`` drive and records, for every state,
@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from tumblebot.sim.goto import GotoConfig, GotoController
+from tumblebot.sim.control.goto import GotoConfig, GotoController
 from tumblebot.sim.observation import EPISODE_STEPS, fields_slice
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
@@ -87,7 +87,7 @@ def goto_teacher(episode_steps: int = EPISODE_STEPS) -> Teacher:
 def choice_teacher(choice: Any, episode_steps: int = EPISODE_STEPS) -> Teacher:
     """goto with the settings a :class:`~tumblebot.training.choice.GotoChoice` predicts
     better for the body (``DUAL_GOTO`` or ``RESIDUAL_GOTO``)."""
-    from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+    from tumblebot.sim.control.policy import DUAL_GOTO, RESIDUAL_GOTO
 
     def settings(design: np.ndarray) -> GotoConfig:
         chosen = DUAL_GOTO if choice.prefers_dual(design) else RESIDUAL_GOTO
@@ -284,7 +284,7 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     if config.observation == "thesis":
         raise TrainingError("imitation needs the context, memory, residual or dual observation (goto uses memory "
                             "the thesis's 9 numbers lack)")
-    from tumblebot.sim.goto import check_navigation_task
+    from tumblebot.sim.control.goto import check_navigation_task
 
     check_navigation_task(config.task)
     if (run_dir / "latest.zip").exists():
@@ -333,7 +333,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
         raise TrainingError("a dual student needs --choice (which goto settings suit which body), and only "
                             "a dual student takes it")
     if choice is not None:
-        from tumblebot.sim.policy import sha256_of
+        from tumblebot.sim.control.policy import sha256_of
         from tumblebot.training.choice import GotoChoice
 
         model_of_choice = GotoChoice.load(choice)  # checked before the run folder is written
@@ -423,7 +423,7 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
     drives every iteration; returns the new run's checkpoint."""
     from stable_baselines3 import PPO
 
-    from tumblebot.sim.policy import LAYOUTS
+    from tumblebot.sim.control.policy import LAYOUTS
     from tumblebot.training.export import export_onnx, write_card
     from tumblebot.training.lookahead import WorkerSpec
 

@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.goto import GotoController
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.pool import WorkerPool
-from tumblebot.sim.rollout import GotoActor, drive, run_episode
+from tumblebot.sim.control.goto import GotoController
+from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.evaluation.rollout import GotoActor, drive, run_episode
+from tumblebot.sim.world.physics import PhysicsProfile
 
 ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
 
@@ -83,9 +83,9 @@ class _Worker:
 
 
 def _worker(spec: WorkerSpec, student: str | None) -> _Worker:
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.policy import OnnxPolicy
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.control.policy import OnnxPolicy
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     env = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
         tumbling_designs_only=spec.tumbling_designs_only)), state_weight=spec.state_weight,

@@ -38,9 +38,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 from tqdm import tqdm
 
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.physics import THESIS, PhysicsProfile
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
+from tumblebot.sim.world.randomization import Randomization
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.features import ContextObservation, TumblerFeaturesExtractor
 
@@ -61,7 +61,7 @@ def make_env(task: str, state_weight: float, progress_weight: float,
              observation: str = "thesis", design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
     ``"memory"`` or ``"residual"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
 
     torch.set_num_threads(1)
     if multiprocessing.parent_process() is not None:

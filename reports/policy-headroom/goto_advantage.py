@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tumblebot.sim.policy import EPISODE_STEPS, LAYOUTS
+from tumblebot.sim.control.policy import EPISODE_STEPS, LAYOUTS
 from tumblebot.training.lookahead import ALL_ACTIONS
 
 DEFAULT = Path("training/checkpoints/res-nav-flat/search-values.npz")

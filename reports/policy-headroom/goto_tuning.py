@@ -26,8 +26,8 @@ _ENV: dict[str, Any] = {}
 
 
 def parse_config(text: str) -> dict[str, Any]:
-    """``name=value,…`` over :class:`~tumblebot.sim.goto.GotoConfig`'s fields."""
-    from tumblebot.sim.goto import GotoConfig
+    """``name=value,…`` over :class:`~tumblebot.sim.control.goto.GotoConfig`'s fields."""
+    from tumblebot.sim.control.goto import GotoConfig
 
     known = {f.name: f.type for f in fields(GotoConfig)}
     out: dict[str, Any] = {}
@@ -47,11 +47,11 @@ def parse_config(text: str) -> dict[str, Any]:
 
 def _episode(job: tuple[tuple[float, ...], int, int, list[dict[str, Any]]]) -> list[float]:
     """Final R of one episode under each configuration (the first: goto's defaults)."""
-    from tumblebot.sim.design import Design
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.evaluate import episode_seed
-    from tumblebot.sim.goto import GotoConfig, GotoController
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.control.goto import GotoConfig, GotoController
+    from tumblebot.sim.evaluation.evaluate import episode_seed
+    from tumblebot.sim.world.design import Design
+    from tumblebot.sim.world.env import TumblerEnv
+    from tumblebot.sim.world.randomization import Randomization
 
     design, seed, index, configs = job
     if "env" not in _ENV:  # one environment per worker, as evaluate's runner keeps
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the per-design results here")
     args = parser.parse_args(argv)
     from tumblebot.errors import TumblebotError
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
     from tumblebot.training.card_eval import NAV_GRID
 
     try:

@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.evaluate import episode_seed
-from tumblebot.sim.gaits import get_gait
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.stats import mean_ci95
+from tumblebot.sim.control.gaits import get_gait
+from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.evaluation.stats import mean_ci95
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 ACTIONS = [(right, left) for right in range(3) for left in range(3)]
 _env: dict[str, Any] = {}

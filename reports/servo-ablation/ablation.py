@@ -20,11 +20,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tumblebot.sim.constants import STALL_TORQUE
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller, evaluate
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.policy import bundled_policy, sha256_of
+from tumblebot.sim.control.policy import bundled_policy, sha256_of
+from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.world.constants import STALL_TORQUE
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.physics import PhysicsProfile
 
 HERE = Path(__file__).resolve().parent
 SERVOS = {

@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller
+from tumblebot.sim.control.policy import bundled_policy
+from tumblebot.sim.evaluation.evaluate import Controller
+from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import front_optima, load_study, open_storage
-from tumblebot.sim.policy import bundled_policy
-from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.report import paired_p
-from tumblebot.sim.runner import EpisodeRunner
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.power import energy_per_metre
 
 HERE = Path(__file__).resolve().parent
 XIS = (0.0, 1.0, 3.0, math.inf)

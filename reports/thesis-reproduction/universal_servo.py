@@ -14,7 +14,7 @@ and a predecessor-like strong one (velocity control, 10 N·m).
 No learned policy is used, since the bundled ones were trained under the realistic servo
 only. Both controllers need no training, so they run under any servo:
 
-* ``nav-flat``: ``goto``, the hand-written closed-loop controller (:mod:`tumblebot.sim.goto`).
+* ``nav-flat``: ``goto``, the hand-written closed-loop controller (:mod:`tumblebot.sim.control.goto`).
 * ``distance-flat`` and ``incline``: the scripted ``forward`` gait (both legs full forward
   every step), the best fixed gait on both tasks in the bundled policies' cards. (A
   closed-loop "face +x, then drive" controller was tried first: turning costs it more than
@@ -34,13 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.evaluate import Controller
+from tumblebot.sim.evaluation.evaluate import Controller
+from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import open_storage
-from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.report import paired_p
 from tumblebot.sim.report.tables import load_results
-from tumblebot.sim.runner import EpisodeRunner
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.physics import PhysicsProfile
 
 HERE = Path(__file__).resolve().parent
 TASKS = ("nav-flat", "distance-flat", "incline")

@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.policy import bundled_policy
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.rollout import Actor, make_actor, run_episode
+from tumblebot.sim.control.policy import bundled_policy
+from tumblebot.sim.evaluation.rollout import Actor, make_actor, run_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 XI3 = Design(*XI3_ROBOT)
 

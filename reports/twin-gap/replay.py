@@ -29,10 +29,10 @@ import numpy as np
 from tumblebot.host.triallog import read_trial
 from tumblebot.host.trials import TrialPlan, load_index
 from tumblebot.host.twin import twin_servo
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.evaluate import episode_seed
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 Change = tuple[int, float, float]  # substep, right, left
 

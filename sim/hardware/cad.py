@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import Design
 from tumblebot.sim.hardware.layout import Circle, FlatPart, Rect, flat_parts, leg_plane_offset
-from tumblebot.sim.mass import MassModel, combine
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import MassModel, combine
 
 NUT_DIAMETER, NUT_HEIGHT = 13.0, 5.6  #: mm, an M8 nut with its washer, as one solid
 HORN_DIAMETER, HORN_HEIGHT = 20.0, 2.5  #: mm, a round servo horn (the mass model's horn_stack includes it)

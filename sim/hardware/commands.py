@@ -13,7 +13,7 @@ from tumblebot.errors import TumblebotError
 
 
 def _design(args: argparse.Namespace) -> Any:
-    from tumblebot.sim.design import Design
+    from tumblebot.sim.world.design import Design
 
     if (args.design is None) == (args.storage is None):
         raise TumblebotError("give --design X,Y,Z,L, or --storage URL with --study NAME (a study's optimum)")
@@ -41,8 +41,8 @@ def _design(args: argparse.Namespace) -> Any:
 def _build(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from tumblebot.sim.catalogue import servo
-    from tumblebot.sim.mass import DEFAULT_MASS_MODEL
+    from tumblebot.sim.world.catalogue import servo
+    from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL
 
     spec = servo(args.servo) if args.servo is not None else DEFAULT_MASS_MODEL.servo
     design = _design(args)

@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from tumblebot.sim.catalogue import ServoSpec
-from tumblebot.sim.design import Design
 from tumblebot.sim.hardware.layout import HORN_ARM_HOLE, HORN_SCREW_HOLE, LEG_TAIL, MARKER_DIAMETER, marker_table
-from tumblebot.sim.mass import MassModel
+from tumblebot.sim.world.catalogue import ServoSpec
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import MassModel
 
 SERVO_SUPPLY_A = 3.0  #: A, a bench supply for two stalled standard servos with margin
 

@@ -1,7 +1,7 @@
 """The parts of one robot as flat shapes, in millimetres, from the design and the mass model.
 
 Every drawing, the 3D assembly and the parts list read their numbers from here, and this
-module reads its own from :class:`~tumblebot.sim.mass.MassModel` and the servo catalogue,
+module reads its own from :class:`~tumblebot.sim.world.mass.MassModel` and the servo catalogue,
 so a changed constant moves the package, the mass and ``e(w)`` together.
 
 A side plate is drawn as seen from outside the robot, in plate coordinates ``(u, v)``: ``u``
@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.mass import MassModel
-from tumblebot.sim.robot import LEG_GAP
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import MassModel
+from tumblebot.sim.world.robot import LEG_GAP
 
 MARKER_DIAMETER = 6.4  #: mm, flat-based hemispherical mocap markers (3.2 mm tall: below the nuts)
 LEG_TAIL = 7.5  #: mm of leg behind the axis, around the horn's centre screw

@@ -19,13 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import Design
 from tumblebot.sim.hardware import cad
 from tumblebot.sim.hardware.cutfiles import write_dxf, write_svg
 from tumblebot.sim.hardware.guide import write_guide, write_wiring
 from tumblebot.sim.hardware.layout import LEG_TAIL, flat_parts, leg_plane_offset, marker_table
-from tumblebot.sim.mass import MassModel
-from tumblebot.sim.power import power_breakdown
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import MassModel
+from tumblebot.sim.world.power import power_breakdown
 
 BOM_COLUMNS = ("part", "quantity", "material", "size_mm", "unit_mass_kg", "mass_kg", "note")
 
@@ -105,7 +105,7 @@ def build_package(w: Design, mass: MassModel, out: Path, progress: Callable[[str
                   ) -> dict[str, Any]:
     """Write the package for design ``w`` (the mass model carries the servo) into ``out``;
     returns what ``package.json`` records."""
-    from tumblebot.sim.robot import RobotModel, urdf_mass_properties
+    from tumblebot.sim.world.robot import RobotModel, urdf_mass_properties
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "cut").mkdir(exist_ok=True)

@@ -1,7 +1,7 @@
 """Design optimisation (thesis §2.6): Bayesian optimisation of ``w = (x, y, z, l)``.
 
 The objective of a design is the thesis's: the mean over a batch of ``B`` episodes of
-``Σ_i λ_i·f_i`` with ``f = R / (e(w) + 1)^ξ`` (:mod:`tumblebot.sim.objective`), each task's
+``Σ_i λ_i·f_i`` with ``f = R / (e(w) + 1)^ξ`` (:mod:`tumblebot.sim.evaluation.score`), each task's
 ``R`` coming from its bundled ONNX policy. Optuna runs the search: designs drawn at random
 for the start-up trials, then its Gaussian-process sampler with log expected improvement
 (``qLogEI`` over the designs other workers are still evaluating). Studies live in any
@@ -13,7 +13,7 @@ objective is a batch mean with a standard error. Three things keep that noise fr
 steering the search:
 
 * common random numbers: episode ``i`` is the same episode for every design
-  (:mod:`tumblebot.sim.runner`), so differences between designs are not drowned by
+  (:mod:`tumblebot.sim.evaluation.runner`), so differences between designs are not drowned by
   differences between episodes;
 * the GP fits a noise variance (``deterministic_objective=False``) rather than
   interpolating the observations;

@@ -15,8 +15,8 @@ import numpy as np
 
 from tumblebot import interrupts
 from tumblebot.sim.errors import SimError, UnknownTaskError
-from tumblebot.sim.objective import VARIANTS, Variant, wrap_reward
-from tumblebot.sim.tasks import get_task
+from tumblebot.sim.evaluation.score import VARIANTS, Variant, wrap_reward
+from tumblebot.sim.world.tasks import get_task
 
 if TYPE_CHECKING:
 

@@ -15,8 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
-from tumblebot.sim.objective import wrap_reward
+from tumblebot.sim.evaluation.score import wrap_reward
 from tumblebot.sim.optimize.objective import Objective, OptimizeError, StopRequested
 from tumblebot.sim.optimize.recipes import Recipe
 from tumblebot.sim.optimize.storage import PROMOTED_PREFIX, TrialRecord, _storage_of, promotions
@@ -31,12 +30,13 @@ from tumblebot.sim.optimize.trials import (
     make_sampler,
     trial_design,
 )
-from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.world.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.world.power import energy_per_metre
 
 if TYPE_CHECKING:
     import optuna
 
-    from tumblebot.sim.runner import EpisodeRunner
+    from tumblebot.sim.evaluation.runner import EpisodeRunner
 
 @dataclass
 class Progress:

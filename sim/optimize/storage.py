@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote, urlsplit, urlunsplit
 
-from tumblebot.sim.constants import STALL_TORQUE
 from tumblebot.sim.optimize.objective import Objective, OptimizeError, format_xi
 from tumblebot.sim.optimize.recipes import Recipe
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.world.constants import STALL_TORQUE
+from tumblebot.sim.world.physics import PhysicsProfile
 
 if TYPE_CHECKING:
     import optuna

@@ -33,9 +33,9 @@ from optuna.trial import TrialState
 from scipy import optimize as sopt
 from scipy import stats
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.optimize.storage import TrialRecord, promotions
-from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.world.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.world.power import energy_per_metre
 
 #: The lower and upper bounds of the design box, and its span, as arrays in PARAMETERS order.
 LOW = np.array([BOUNDS[n][0] for n in PARAMETERS])

@@ -11,13 +11,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tumblebot.sim.design import PARAMETERS, Design
-from tumblebot.sim.evaluate import Controller
+from tumblebot.sim.evaluation.evaluate import Controller
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
 from tumblebot.sim.optimize.storage import TrialRecord, load_config, promotions
 from tumblebot.sim.optimize.surrogate import RSampler
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.world.design import PARAMETERS, Design
+from tumblebot.sim.world.physics import PhysicsProfile
 
 if TYPE_CHECKING:
     import optuna
@@ -191,8 +191,8 @@ def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: b
 
 def bundled_policies(tasks: list[str], thesis: bool = False) -> dict[str, Path]:
     """The bundled ONNX policy of each task (with ``thesis``, the one that sees only the
-    thesis observation, :func:`~tumblebot.sim.policy.bundled_policy`)."""
-    from tumblebot.sim.policy import PolicyError, bundled_policy
+    thesis observation, :func:`~tumblebot.sim.control.policy.bundled_policy`)."""
+    from tumblebot.sim.control.policy import PolicyError, bundled_policy
 
     out = {t: bundled_policy(t, "thesis" if thesis else None) for t in tasks}
     missing = [t for t, path in out.items() if not path.is_file()]

@@ -15,10 +15,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tumblebot.sim.design import PARAMETERS
 from tumblebot.sim.optimize import OptimizeError, open_storage
 from tumblebot.sim.optimize.storage import redact_url
-from tumblebot.sim.physics import PhysicsProfile
 from tumblebot.sim.report.markdown import render_markdown
 from tumblebot.sim.report.plots import draw_plots
 from tumblebot.sim.report.tables import (
@@ -39,6 +37,8 @@ from tumblebot.sim.report.tables import (
     universal_check,
     would_i_still_build_it,
 )
+from tumblebot.sim.world.design import PARAMETERS
+from tumblebot.sim.world.physics import PhysicsProfile
 
 __all__ = ["THESIS_TABLE_31", "THESIS_TABLE_31_P", "THESIS_TABLE_32", "Evaluated", "StudyResult", "paired_p",
            "write_report"]

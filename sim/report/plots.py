@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
-from tumblebot.sim.power import energy_per_metre
 from tumblebot.sim.report.tables import StudyResult
+from tumblebot.sim.world.design import BOUNDS, PARAMETERS, Design
+from tumblebot.sim.world.power import energy_per_metre
 
 
 # ------------------------------------------------------------------------------- plots

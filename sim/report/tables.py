@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
+from tumblebot.sim.evaluation.stats import mean_ci95
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -27,9 +27,9 @@ from tumblebot.sim.optimize import (
     study_controllers,
     value_at,
 )
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.power import energy_per_metre
-from tumblebot.sim.stats import mean_ci95
+from tumblebot.sim.world.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
+from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.sim.world.power import energy_per_metre
 
 #: Thesis Table 3.1 (nav-flat): ξ → (x, y, z, l, R, e).
 THESIS_TABLE_31: dict[str, tuple[float, float, float, float, float, float]] = {
@@ -105,7 +105,7 @@ class Evaluator:
     def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
                  controller: str = "policy", servo: PhysicsProfile | None = None,
                  allow_servo_mismatch: bool = False) -> None:
-        from tumblebot.sim.runner import EpisodeRunner
+        from tumblebot.sim.evaluation.runner import EpisodeRunner
 
         self.runner = (EpisodeRunner(study_controllers(controller, tasks, allow_servo_mismatch), workers=workers,
                                      servo=servo)
@@ -346,7 +346,7 @@ def rebuild_pairs(usable: list[StudyResult], physics: PhysicsProfile
     """For "would I still build it?": each study optimised under ``physics`` with the study
     of the same objective optimised under ``thesis``. Returns the pairs, and when there
     are none, a line that says what is missing."""
-    from tumblebot.sim.physics import THESIS
+    from tumblebot.sim.world.physics import THESIS
 
     if physics.same_as(THESIS):
         return [], ""
@@ -372,7 +372,7 @@ def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Eva
     """The thesis-world optimum and the optimum under ``physics`` (``ev``'s world), each
     scored under both worlds on the same episodes (per-episode objective, paired t-test),
     and the verdict."""
-    from tumblebot.sim.physics import THESIS
+    from tumblebot.sim.world.physics import THESIS
 
     ev_thesis = Evaluator(list(ev.tasks), ev.episodes, ev.workers, ev.seed, 0, False, ev.controller, THESIS,
                           allow_servo_mismatch)

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from tumblebot import interrupts
 from tumblebot.cliargs import check_writable, positive_float, positive_int
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.tasks import TASK_NAMES
+from tumblebot.sim.world.tasks import TASK_NAMES
 
 __all__ = ["TASK_NAMES", "build_parser", "main", "missing_extra"]
 

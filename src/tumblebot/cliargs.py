@@ -1,5 +1,5 @@
 """What every command's parser shares: argument types, the physics and servo options, the
-output checks. (The task list comes from the task registry, :mod:`tumblebot.sim.tasks`.)
+output checks. (The task list comes from the task registry, :mod:`tumblebot.sim.world.tasks`.)
 
 Nothing here imports the simulator, so building the parser stays fast and works on an
 install with only the ``agent`` extra.

@@ -13,6 +13,6 @@ XI3_ROBOT: tuple[float, float, float, float] = (0.292, 0.129, 0.098, 0.136)
 XI3_ROBOT_TEXT = ",".join(f"{v:g}" for v in XI3_ROBOT)
 #: The largest servo stall torque accepted anywhere, N·m (a predecessor-like strong servo is 10).
 MAX_STALL_TORQUE = 100.0
-#: The policy observation layouts by name (:data:`tumblebot.sim.policy.LAYOUTS` defines them;
+#: The policy observation layouts by name (:data:`tumblebot.sim.control.policy.LAYOUTS` defines them;
 #: a test keeps the two in step).
 OBSERVATION_LAYOUTS: tuple[str, ...] = ("thesis", "context", "memory", "residual", "dual")

@@ -128,6 +128,6 @@ def test_that_the_main_job_prints_the_optimum_the_readme_quotes(tmp_path: Path) 
 
 def test_that_the_help_texts_name_every_task_and_no_other() -> None:
     from tumblebot.cli import TASK_NAMES
-    from tumblebot.sim.tasks import TASKS
+    from tumblebot.sim.world.tasks import TASKS
 
     assert tuple(TASKS) == TASK_NAMES

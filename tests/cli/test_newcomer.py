@@ -12,7 +12,7 @@ import pytest
 
 from tests.calibration_logs import write_set
 from tests.helpers import tb
-from tumblebot.sim.physics import THESIS
+from tumblebot.sim.world.physics import THESIS
 
 ROOT = Path(__file__).resolve().parents[2]
 

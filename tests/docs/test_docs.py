@@ -119,7 +119,7 @@ def test_that_the_site_builds_strictly_with_every_page_and_the_generated_command
     for command in ("tumblebot optimize", "tumblebot trial run", "tumblebot twin check", "tumblebot calibrate",
                     "tumblebot build", "tumblebot bench excite", "--slice-points"):
         assert command in reference, command
-    assert "tumblebot.sim.design" in (site / "reference" / "api" / "index.html").read_text()
+    assert "tumblebot.sim.world.design" in (site / "reference" / "api" / "index.html").read_text()
     assert (site / "_repo" / "reports" / "thesis-reproduction" / "slices.png").is_file()
 
 

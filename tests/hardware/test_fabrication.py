@@ -18,12 +18,12 @@ from typing import Any
 import pytest
 
 from tests.helpers import tb
-from tumblebot.sim.catalogue import CatalogueError, catalogue, default_servo, servo
-from tumblebot.sim.design import Design
 from tumblebot.sim.hardware.layout import MARKERS
 from tumblebot.sim.hardware.package import bom
-from tumblebot.sim.mass import DEFAULT_MASS_MODEL
-from tumblebot.sim.power import power_breakdown
+from tumblebot.sim.world.catalogue import CatalogueError, catalogue, default_servo, servo
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL
+from tumblebot.sim.world.power import power_breakdown
 
 DESIGNS = {
     "xi3": (0.292, 0.129, 0.098, 0.136),
@@ -163,7 +163,7 @@ def test_that_the_3d_assembly_loads_with_the_bodys_size_and_the_mass_models_mass
 
 
 def test_that_the_catalogues_default_servo_is_the_simulators() -> None:
-    from tumblebot.sim import constants as C
+    from tumblebot.sim.world import constants as C
 
     spec = default_servo()
     assert spec.name == "thesis" and DEFAULT_MASS_MODEL.servo == spec

@@ -142,7 +142,7 @@ def test_that_bench_excite_runs_the_identification_run_as_a_trial_set(tmp_path: 
     the scripted commands, logged like any trial, with the time each command left."""
     from tumblebot.host.triallog import read_trial
     from tumblebot.host.trials import load_index
-    from tumblebot.sim.gaits import EXCITATION
+    from tumblebot.sim.control.gaits import EXCITATION
 
     address, key = agent
     out = tmp_path / "excite"

@@ -18,7 +18,7 @@ from tests.calibration_logs import write_set
 from tests.helpers import tb
 from tumblebot.host.calibrate import cache_path
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.world.physics import PhysicsProfile
 
 HIDDEN = PhysicsProfile.from_json({"name": "hidden", "free_speed": 4.4, "stall_torque": 0.9, "friction": 0.6})
 SMALL = ("--budget", str(MIN_DESIGN_POINTS), "--workers", "2")

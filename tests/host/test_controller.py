@@ -23,8 +23,8 @@ from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import encode_pose_datagram, open_source
 from tumblebot.host.triallog import TrialLogWriter, read_trial
 from tumblebot.pi_agent.agent import Agent, AgentConfig
-from tumblebot.sim.frames import yaw_quaternion
-from tumblebot.sim.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.world.frames import yaw_quaternion
 
 KEY = bytes(range(32))
 pytestmark = pytest.mark.hil  # the lab's Arduino is the real firmware in simavr
@@ -267,7 +267,7 @@ def test_that_a_host_follows_an_agent_restart_to_its_new_session(lab: Lab) -> No
 
 
 def test_that_goto_drives_the_host_controller_and_starts_every_trial_afresh(lab: Lab) -> None:
-    from tumblebot.sim.goto import GotoPolicy
+    from tumblebot.sim.control.goto import GotoPolicy
 
     goto = GotoPolicy(5)
     first = lab.controller(goto).run_trial()

@@ -101,7 +101,7 @@ def test_that_a_replayed_trial_reproduces_the_recording_regression_start_wait_at
     the trial begins, so every step sees the pose it saw when recorded."""
     from tests.calibration_logs import write_set
     from tumblebot.host.triallog import read_trial
-    from tumblebot.sim.physics import THESIS
+    from tumblebot.sim.world.physics import THESIS
 
     recorded = write_set(tmp_path / "recorded", THESIS, 1)
     log = read_trial(recorded / "trial-0000.mcap")

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from tumblebot.host.twin import combined_p, consistency_test, upper_tail_p
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.evaluate import episode_seed
-from tumblebot.sim.policy import OnnxPolicy, bundled_policy
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
+from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 XI3 = Design(0.292, 0.129, 0.098, 0.136)
 STARTS = [(1.5 * math.cos(a), 1.5 * math.sin(a), a + 1.0) for a in (0.3, 2.4, 4.5)]  # 3 trials, the 1.5 m circle

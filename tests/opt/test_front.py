@@ -11,7 +11,6 @@ import optuna
 import pytest
 
 from tests.helpers import tb
-from tumblebot.sim.design import Design
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -21,7 +20,8 @@ from tumblebot.sim.optimize import (
     parse_xi_list,
     surrogate,
 )
-from tumblebot.sim.power import energy_per_metre
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.power import energy_per_metre
 
 
 def _truth(W: np.ndarray) -> np.ndarray:

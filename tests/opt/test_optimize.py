@@ -16,7 +16,6 @@ import optuna
 import pytest
 
 from tests.helpers import tb
-from tumblebot.sim.design import Design
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -31,6 +30,7 @@ from tumblebot.sim.optimize import (
     promotions,
     screen_scores,
 )
+from tumblebot.sim.world.design import Design
 
 
 def load(db: Path, name: str) -> optuna.Study:
@@ -218,7 +218,7 @@ def test_that_bad_optimize_input_gets_one_clear_error(tmp_path: Path, args: list
 def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     # All four tasks ship a policy now, so point the lookup at an empty folder (in-process).
-    import tumblebot.sim.policy as policy
+    import tumblebot.sim.control.policy as policy
     from tumblebot.cli import main
 
     monkeypatch.setattr(policy, "bundled_policy", lambda task, layout=None: tmp_path / f"{task}.onnx")

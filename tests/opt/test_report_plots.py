@@ -11,8 +11,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from tumblebot.sim.design import Design
 from tumblebot.sim.report.plots import _plot_energy, _plot_objective_vs_trial, _plot_slices
+from tumblebot.sim.world.design import Design
 
 OPTIMUM = Design(0.189, 0.102, 0.084, 0.108)
 

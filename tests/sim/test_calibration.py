@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from tumblebot.sim import calibration as cal
-from tumblebot.sim.design import THESIS_ROBOTS
-from tumblebot.sim.frames import yaw_quaternion
-from tumblebot.sim.gaits import EXCITATION
-from tumblebot.sim.physics import THESIS, PhysicsProfile
+from tumblebot.sim.control.gaits import EXCITATION
+from tumblebot.sim.world.design import THESIS_ROBOTS
+from tumblebot.sim.world.frames import yaw_quaternion
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
 XI3 = THESIS_ROBOTS["3"].as_tuple()
 EXCITE = tuple((float(k), a - 1, b - 1) for k, (a, b) in enumerate(EXCITATION))

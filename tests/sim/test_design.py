@@ -4,8 +4,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tumblebot.sim.design import BOUNDS, PARAMETERS, Design
 from tumblebot.sim.errors import DesignError
+from tumblebot.sim.world.design import BOUNDS, PARAMETERS, Design
 
 
 @pytest.mark.parametrize("name", PARAMETERS)
@@ -58,8 +58,8 @@ def test_that_a_design_cannot_tumble_when_its_leg_is_shorter_than_the_pivot_radi
 
 def test_that_the_xi3_robot_is_written_once() -> None:
     from tumblebot.defaults import XI3_ROBOT, XI3_ROBOT_TEXT
-    from tumblebot.sim.design import THESIS_ROBOTS
-    from tumblebot.sim.env import DEFAULT_DESIGN
+    from tumblebot.sim.world.design import THESIS_ROBOTS
+    from tumblebot.sim.world.env import DEFAULT_DESIGN
 
     assert THESIS_ROBOTS["3"].as_tuple() == XI3_ROBOT == DEFAULT_DESIGN.as_tuple()
     assert Design.parse(XI3_ROBOT_TEXT).as_tuple() == XI3_ROBOT

@@ -9,11 +9,11 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tumblebot.sim  # noqa: F401  (registers the environments)
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import OBS_FIELDS, OBS_INDEX, MotorModel, TumblerEnv
 from tumblebot.sim.errors import SimError, UnknownTaskError
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.tasks import TASK_NAMES, TASKS
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import OBS_FIELDS, OBS_INDEX, MotorModel, TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
+from tumblebot.sim.world.tasks import TASK_NAMES, TASKS
 
 ENV_IDS = [TASKS[t].env_id for t in TASK_NAMES]
 

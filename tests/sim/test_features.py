@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.features import DESIGN_SCALE, FEATURES, compute
+from tumblebot.sim.control.features import DESIGN_SCALE, FEATURES, compute
+from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
 from tumblebot.sim.observation import LAYOUTS
-from tumblebot.sim.policy import OnnxPolicy, bundled_policy
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 
 POLICIES = sorted(Path(bundled_policy("nav-flat")).parent.glob("*.onnx"))
 

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from tumblebot.sim.frames import quat_multiply, to_lab_frame, to_task_frame, yaw_quaternion
+from tumblebot.sim.world.frames import quat_multiply, to_lab_frame, to_task_frame, yaw_quaternion
 
 
 def random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -8,12 +8,12 @@ import pytest
 
 from tumblebot.cli import main
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.control.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.evaluate import Controller, evaluate
-from tumblebot.sim.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
-from tumblebot.sim.physics import PhysicsProfile
+from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.physics import PhysicsProfile
 
 XI3 = Design(*XI3_ROBOT)
 XI0 = Design(0.293, 0.117, 0.158, 0.218)

@@ -5,7 +5,7 @@ import numpy as np
 import psutil
 import pytest
 
-from tumblebot.sim.env import TumblerEnv
+from tumblebot.sim.world.env import TumblerEnv
 
 
 def rss_mb() -> float:

@@ -3,7 +3,7 @@ import math
 import pytest
 
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.objective import wrap_reward
+from tumblebot.sim.evaluation.score import wrap_reward
 
 
 def test_that_the_thesis_wrapper_divides_by_e_plus_one_to_the_xi() -> None:

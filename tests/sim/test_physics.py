@@ -10,9 +10,9 @@ import pybullet as p
 import pytest
 
 from tests.helpers import tb
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.physics import THESIS, PhysicsError, PhysicsProfile
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.physics import THESIS, PhysicsError, PhysicsProfile
+from tumblebot.sim.world.randomization import Randomization
 
 
 def test_that_the_thesis_profile_is_what_the_simulator_assumed_before_profiles() -> None:

@@ -11,7 +11,7 @@ import pytest
 
 from tumblebot.cli import main
 from tumblebot.sim.optimize import Objective, Recipe, StudyConfig
-from tumblebot.sim.physics import THESIS, PhysicsProfile
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 from tumblebot.training.config import TrainConfig, TrainingError
 
 XI3 = "0.292,0.129,0.098,0.136"

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.power import (
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.power import (
     displacement_per_tumble,
     half_tumble_power,
     leg_angle,

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from tumblebot.sim.design import Design
-from tumblebot.sim.episode import run_gait_episode
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.render import GOAL_COLOUR, PATH_COLOUR, Camera
+from tumblebot.sim.evaluation.episode import run_gait_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.randomization import Randomization
+from tumblebot.sim.world.render import GOAL_COLOUR, PATH_COLOUR, Camera
 
 XI3 = Design(0.292, 0.129, 0.098, 0.136)
 

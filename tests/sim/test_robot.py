@@ -5,11 +5,11 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.mass import DEFAULT_MASS_MODEL
-from tumblebot.sim.robot import RobotModel, build_robot, to_urdf
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL
+from tumblebot.sim.world.robot import RobotModel, build_robot, to_urdf
 
 
 @pytest.mark.parametrize("key", list(THESIS_ROBOTS))
@@ -47,7 +47,7 @@ def test_that_the_exported_urdf_loads_in_pybullet_with_the_same_masses(tmp_path:
 
 
 def pinned_env() -> TumblerEnv:
-    from tumblebot.sim.randomization import Randomization
+    from tumblebot.sim.world.randomization import Randomization
 
     env = TumblerEnv(task="nav-flat", randomization=Randomization.off())
     env.reset(seed=0)

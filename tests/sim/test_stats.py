@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tumblebot.sim.stats import mean_ci95
+from tumblebot.sim.evaluation.stats import mean_ci95
 
 
 def test_that_the_interval_is_the_student_t_interval_of_the_mean() -> None:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.terrain import TerrainConfig, perlin, tile_heightfield
+from tumblebot.sim.world.terrain import TerrainConfig, perlin, tile_heightfield
 
 
 def test_that_perlin_noise_is_seeded_and_smooth() -> None:

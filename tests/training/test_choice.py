@@ -11,10 +11,10 @@ import pytest
 
 from tumblebot.cli import main
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.sim.design import Design
-from tumblebot.sim.goto import GotoConfig
-from tumblebot.sim.physics import THESIS
-from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.sim.control.goto import GotoConfig
+from tumblebot.sim.control.policy import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import THESIS
 from tumblebot.training.choice import SEEDING, GotoChoice, reach, read_sweep, sweep, sweep_designs
 from tumblebot.training.config import TrainingError
 from tumblebot.training.imitation import choice_teacher

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from tumblebot.cli import main
-from tumblebot.sim.design import THESIS_ROBOTS, Design
-from tumblebot.sim.env import TumblerEnv
-from tumblebot.sim.evaluate import Controller, evaluate
-from tumblebot.sim.goto import FORWARD, NAVIGATION_TASKS, SPIN_POSITIVE, GotoController
-from tumblebot.sim.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError, bundled_policy
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.control.goto import FORWARD, NAVIGATION_TASKS, SPIN_POSITIVE, GotoController
+from tumblebot.sim.control.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError, bundled_policy
+from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
 from tumblebot.training.config import TrainConfig
 from tumblebot.training.features import ContextObservation
 
@@ -151,8 +151,8 @@ def test_that_the_residual_input_holds_the_action_goto_would_take_at_every_step(
 
 def test_that_the_residual_layouts_goto_is_pinned_to_the_settings_it_was_trained_with() -> None:
     from tumblebot.defaults import OBSERVATION_LAYOUTS
-    from tumblebot.sim.goto import GotoConfig
-    from tumblebot.sim.policy import DUAL_GOTO, RESIDUAL_GOTO
+    from tumblebot.sim.control.goto import GotoConfig
+    from tumblebot.sim.control.policy import DUAL_GOTO, RESIDUAL_GOTO
 
     assert tuple(LAYOUTS) == OBSERVATION_LAYOUTS
     assert GotoConfig(**RESIDUAL_GOTO) == GotoConfig(spin_steps_left=2)
@@ -163,8 +163,8 @@ def test_that_the_residual_layouts_goto_is_pinned_to_the_settings_it_was_trained
 def test_that_the_dual_input_holds_the_actions_of_both_gotos_at_every_step(driver: str) -> None:
     """The dual layout is the residual layout, then the second goto's choice for this step;
     both are told what was actually done before (whoever drives)."""
-    from tumblebot.sim.goto import GotoConfig
-    from tumblebot.sim.policy import DUAL_GOTO
+    from tumblebot.sim.control.goto import GotoConfig
+    from tumblebot.sim.control.policy import DUAL_GOTO
 
     env = TumblerEnv(task="nav-flat", design=XI3)
     dual, residual = ObservationContext("dual"), ObservationContext("residual")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from tumblebot.sim.features import FEATURES, compute
+from tumblebot.sim.control.features import FEATURES, compute
 from tumblebot.sim.observation import LAYOUTS
 from tumblebot.training.features import feature_names, features_for
 

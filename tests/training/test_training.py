@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from tumblebot.cli import main
-from tumblebot.sim.design import Design
-from tumblebot.sim.env import OBS_FIELDS, TumblerEnv
-from tumblebot.sim.evaluate import Controller, evaluate
-from tumblebot.sim.policy import OBS_LAYOUT, OnnxPolicy, PolicyError
+from tumblebot.sim.control.policy import OBS_LAYOUT, OnnxPolicy, PolicyError
+from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import OBS_FIELDS, TumblerEnv
 from tumblebot.training.config import TrainConfig, TrainingError
 
 XI3 = "0.292,0.129,0.098,0.136"
@@ -207,7 +207,7 @@ def test_that_a_policy_for_another_task_or_layout_is_refused(tiny_policy: Path, 
 
 
 def test_that_evaluation_and_policies_do_not_import_torch() -> None:
-    code = ("import sys, tumblebot.sim.evaluate, tumblebot.sim.policy, tumblebot.cli; "
+    code = ("import sys, tumblebot.sim.evaluation.evaluate, tumblebot.sim.control.policy, tumblebot.cli; "
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 

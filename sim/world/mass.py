@@ -19,7 +19,7 @@ below were chosen (rounded to catalogue values):
 * ``m0``: two servos of 43 g (Parallax continuous-rotation class), sixteen M8 nuts with
   washers at 5.6 g, and a 78 g electronics board (Pi 3B+ 50 g, Uno 25 g, wiring): 0.254 kg.
 * legs: Delrin (1410 kg/m³), 15 mm × 3 mm cross-section: 0.0635 kg/m each.
-* servos: the servo catalogue's entry (:mod:`tumblebot.sim.catalogue`; the
+* servos: the servo catalogue's entry (:mod:`tumblebot.sim.world.catalogue`; the
   default is the simulator's servo, 43 g), each on a 3 mm Delrin motor mount that doubles
   the side plate around the servo's cut-out (5.0 g each). The side plates' cut-outs (the
   servo, its screws, the rod holes: 3.3 g a plate on the thesis servo) are taken off their
@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tumblebot.sim.catalogue import ServoSpec, default_servo
-from tumblebot.sim.design import Design
+from tumblebot.sim.world.catalogue import ServoSpec, default_servo
+from tumblebot.sim.world.design import Design
 
 
 @dataclass(frozen=True)

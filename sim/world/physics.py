@@ -9,7 +9,7 @@ One typed, validated JSON file with flat keys in SI units::
      "latency": [0.0, 0.04], "motor_speed_sigma": 0.8}
 
 ``thesis`` is the built-in profile (the thesis's servo constants, :data:`THESIS`); a servo
-of the catalogue (``sim/servos.json``) gives the servo keys
+of the catalogue (``sim/world/servos.json``) gives the servo keys
 (:meth:`PhysicsProfile.with_servo`). A profile is identified by its :meth:`digest` (its
 values, not its name), which studies, model cards and twin records store next to it.
 """
@@ -23,10 +23,10 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.catalogue import servo
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.randomization import Randomization
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.catalogue import servo
+from tumblebot.sim.world.randomization import Randomization
 
 MAX_FREE_SPEED = 50.0  #: rad/s; beyond any hobby servo's output shaft
 MAX_HOLD_TORQUE = 10.0  #: N·m
@@ -182,7 +182,7 @@ class PhysicsProfile:
         return replace(self, name=f"{self.name}+{name}", free_speed=spec.free_speed, stall_torque=spec.stall_torque)
 
     def env_kwargs(self) -> dict[str, Any]:
-        """The :class:`~tumblebot.sim.env.TumblerEnv` keyword arguments of the servo."""
+        """The :class:`~tumblebot.sim.world.env.TumblerEnv` keyword arguments of the servo."""
         return {"motor_model": self.motor_model, "stall_torque": self.stall_torque, "free_speed": self.free_speed,
                 "hold_torque": self.hold_torque}
 

@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.design import Design
-from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel, combine
-from tumblebot.sim.pb import pybullet
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL, MassModel, combine
+from tumblebot.sim.world.pb import pybullet
 
 LEG_NAMES: tuple[str, str] = ("leg_right", "leg_left")  #: joint order: +x side, −x side
 LEG_GAP = 0.002  #: clearance between a side plate and its leg, m

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tumblebot.sim.pb import pybullet
-from tumblebot.sim.tasks import TaskSpec
-from tumblebot.sim.terrain import TerrainConfig, height_at, tile_heightfield
+from tumblebot.sim.world.pb import pybullet
+from tumblebot.sim.world.tasks import TaskSpec
+from tumblebot.sim.world.terrain import TerrainConfig, height_at, tile_heightfield
 
 INCLINE_ANGLE = math.radians(15.0)  #: the ramp's slope (thesis §2.3.3)
 RAMP_LENGTH = 8.0  #: m along the slope

@@ -1,7 +1,7 @@
 """The package's one worker pool: processes that each build their state once, then run jobs.
 
 Everything that runs episodes in parallel uses :class:`WorkerPool`: the evaluation and
-the optimiser (:class:`tumblebot.sim.runner.EpisodeRunner`, one environment and one
+the optimiser (:class:`tumblebot.sim.evaluation.runner.EpisodeRunner`, one environment and one
 controller per task, reused across designs), the calibration (the logged trials, replayed
 under many physics profiles), and the teacher's sweep and clairvoyant search in training.
 Each worker calls ``setup(*args)`` once (say, to build an environment) and then

@@ -82,7 +82,7 @@ def _floats(value: Any, n: int) -> Any:
 @cache
 def catalogue() -> dict[str, ServoSpec]:
     """Every servo in the catalogue, by name (the default first)."""
-    data = json.loads(resources.files("tumblebot.sim").joinpath("servos.json").read_text())
+    data = json.loads(resources.files("tumblebot.sim.world").joinpath("servos.json").read_text())
     entries = {name: ServoSpec.from_entry(name, entry) for name, entry in data["servos"].items()}
     default = data["default"]
     return {default: entries[default], **entries}

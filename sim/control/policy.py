@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim import features
+from tumblebot.sim.control import features
+from tumblebot.sim.control.goto import GotoConfig, GotoController, MotionMemory, heading
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.goto import GotoConfig, GotoController, MotionMemory, heading
 from tumblebot.sim.observation import (
     ACTION_LAYOUT,
     COMMAND,
@@ -41,7 +41,7 @@ from tumblebot.sim.observation import (
     RESIDUAL_FIELDS,
     RESIDUAL_GOTO,
 )
-from tumblebot.sim.tasks import same_goal
+from tumblebot.sim.world.tasks import same_goal
 
 __all__ = ["ACTION_LAYOUT", "COMMAND", "CONTEXT_FIELDS", "DUAL_FIELDS", "DUAL_GOTO", "EPISODE_STEPS", "LAYOUTS",
            "MEMORY_FIELDS", "OBS_LAYOUT", "POSITION", "QUATERNION", "RESIDUAL_FIELDS", "RESIDUAL_GOTO",
@@ -237,7 +237,7 @@ class OnnxPolicy:
         self.context = ObservationContext(self.layout)
         self._mlp, self._features = _split_after_features(path, self.layout, options)
         if self._mlp is not None and not self._split_agrees():
-            self._mlp = None  # a feature layer other than tumblebot.sim.features': the whole graph
+            self._mlp = None  # a feature layer other than tumblebot.sim.control.features': the whole graph
         self._design: tuple[float, ...] | None = None
 
     @property
@@ -282,7 +282,7 @@ class OnnxPolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The action for the thesis observation ``obs`` before the next step: the feature
-        layer in NumPy (:mod:`tumblebot.sim.features`), then the graph's MLP alone: the
+        layer in NumPy (:mod:`tumblebot.sim.control.features`), then the graph's MLP alone: the
         whole graph's action (checked when the policy loads) for a fraction of
         onnxruntime's per-node cost (:attr:`split`)."""
         x = self.context(obs)

@@ -1,9 +1,9 @@
 """One episode rollout for the whole package, and the controllers it drives.
 
 :func:`run_episode` is the only loop that steps an environment through an episode for
-evaluation: :mod:`tumblebot.sim.evaluate` (one design, many episodes) and
-:mod:`tumblebot.sim.runner` (many designs, a pool that outlives them) both call it. A
-controller is made from its description (:class:`~tumblebot.sim.evaluate.Controller`) by
+evaluation: :mod:`tumblebot.sim.evaluation.evaluate` (one design, many episodes) and
+:mod:`tumblebot.sim.evaluation.runner` (many designs, a pool that outlives them) both call it. A
+controller is made from its description (:class:`~tumblebot.sim.evaluation.evaluate.Controller`) by
 :func:`make_actor`; every kind answers ``reset(seed, design)`` at the start of an episode
 and ``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the
 step and the seed, a ``thesis`` ONNX policy only the observation, a ``context`` one also
@@ -19,8 +19,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tumblebot.sim.control.goto import GotoController, check_navigation_task
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.goto import GotoController, check_navigation_task
 
 Design4 = tuple[float, float, float, float]
 StepCallback = Callable[[int, np.ndarray, np.ndarray, dict[str, Any]], None]
@@ -34,7 +34,7 @@ class Actor(Protocol):
 
 class _PolicyActor:
     def __init__(self, path: Path, task: str) -> None:
-        from tumblebot.sim.policy import OnnxPolicy
+        from tumblebot.sim.control.policy import OnnxPolicy
 
         self.policy = OnnxPolicy(path, task=task)
 
@@ -47,7 +47,7 @@ class _PolicyActor:
 
 class _GaitActor:
     def __init__(self, name: str) -> None:
-        from tumblebot.sim.gaits import get_gait
+        from tumblebot.sim.control.gaits import get_gait
 
         self.gait = get_gait(name)
         self.rng = np.random.default_rng(0)
@@ -60,7 +60,7 @@ class _GaitActor:
 
 
 class GotoActor:
-    """``goto`` (:mod:`tumblebot.sim.goto`): a new controller with its default settings, or
+    """``goto`` (:mod:`tumblebot.sim.control.goto`): a new controller with its default settings, or
     ``controller`` as it is (say, one with pinned settings, or one mid-episode whose memory
     a planner's roll-out from a snapshot keeps: :func:`drive` does not reset it)."""
 

@@ -16,14 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.controllers import Controller, episode_seed
-from tumblebot.sim.design import Design
+from tumblebot.sim.control.controllers import Controller, episode_seed
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.power import energy_per_metre
-from tumblebot.sim.runner import EpisodeRunner
-from tumblebot.sim.stats import mean_ci95
-from tumblebot.sim.tasks import get_task
+from tumblebot.sim.evaluation.runner import EpisodeRunner
+from tumblebot.sim.evaluation.stats import mean_ci95
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.sim.world.power import energy_per_metre
+from tumblebot.sim.world.tasks import get_task
 
 __all__ = ["Controller", "EvalResult", "episode_seed", "evaluate"]
 
@@ -58,7 +58,7 @@ class EvalResult:
         return mean_ci95(self.R)
 
     def summary(self, xi: float | None = None) -> dict[str, Any]:
-        from tumblebot.sim.objective import wrap_reward
+        from tumblebot.sim.evaluation.score import wrap_reward
 
         out: dict[str, Any] = {
             "task": self.task,

@@ -3,8 +3,8 @@
 :class:`Controller` names an ONNX policy, a scripted gait or ``goto`` (picklable, so worker
 processes rebuild it); :func:`episode_seed` is the reset seed of episode ``i`` of an
 evaluation seeded ``S``, the same for every design and every number of workers (common
-random numbers). The evaluation (:mod:`tumblebot.sim.evaluate`) and the worker pool
-(:mod:`tumblebot.sim.runner`) both build on this module.
+random numbers). The evaluation (:mod:`tumblebot.sim.evaluation.evaluate`) and the worker pool
+(:mod:`tumblebot.sim.evaluation.runner`) both build on this module.
 """
 
 from __future__ import annotations
@@ -14,19 +14,19 @@ from pathlib import Path
 
 import numpy as np
 
+from tumblebot.sim.control.gaits import get_gait
+from tumblebot.sim.control.goto import check_navigation_task
+from tumblebot.sim.control.policy import OnnxPolicy, PolicyError
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.gaits import get_gait
-from tumblebot.sim.goto import check_navigation_task
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.policy import OnnxPolicy, PolicyError
-from tumblebot.sim.tasks import get_task
+from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.sim.world.tasks import get_task
 
 
 @dataclass(frozen=True)
 class Controller:
     """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
     (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
-    controller of :mod:`tumblebot.sim.goto`). Picklable, so workers can rebuild it."""
+    controller of :mod:`tumblebot.sim.control.goto`). Picklable, so workers can rebuild it."""
 
     kind: str
     name: str

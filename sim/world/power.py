@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.design import Design
-from tumblebot.sim.mass import DEFAULT_MASS_MODEL, MassModel
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.mass import DEFAULT_MASS_MODEL, MassModel
 
 #: Gauss–Legendre nodes used for the θ integrals (the integrand is smooth).
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(64)

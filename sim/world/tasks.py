@@ -5,7 +5,7 @@ the corrected formulas (the thesis prints ``sqrt(vx + vy)``; the squares are
 intended). This module is pure numpy: the host and the optimiser use it without PyBullet.
 
 Tasks are posed toward the origin or along +x without loss of generality; the host maps
-any goal or heading onto that frame (:mod:`tumblebot.sim.frames`).
+any goal or heading onto that frame (:mod:`tumblebot.sim.world.frames`).
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ import numpy as np
 
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.observation import POSITION, QUATERNION
-from tumblebot.sim.tasks import TASKS, get_task
+from tumblebot.sim.world.tasks import TASKS, get_task
 
 Action = tuple[int, int]
 
@@ -102,7 +102,7 @@ class MotionMemory:
     ``memory`` and starting from the priors. Feed it every observation of the episode, in
     order, with the action taken since the previous one (:meth:`observe`).
 
-    A ``memory`` policy (:data:`tumblebot.sim.policy.LAYOUTS`) is given the same estimates,
+    A ``memory`` policy (:data:`tumblebot.sim.control.policy.LAYOUTS`) is given the same estimates,
     computed by this class from the commands its observations carry."""
 
     def __init__(self, memory: float = 0.5) -> None:

@@ -24,7 +24,7 @@ Motor models (``motor_model``):
 ``stall_torque`` (N·m, default the thesis constants' 0.582) scales both models: the DC
 line runs from it at standstill to zero at the free speed (``free_speed``, rad/s, default
 the thesis's γ̇ = 3.67), and velocity control is capped at it. A physics profile
-(:mod:`tumblebot.sim.physics`) gives all of these at once. A predecessor-like strong
+(:mod:`tumblebot.sim.world.physics`) gives all of these at once. A predecessor-like strong
 servo is ``motor_model="velocity", stall_torque=10``.
 
 "Stop" holds the leg with a velocity-zero motor limited to the back-EMF braking torque
@@ -43,16 +43,16 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tumblebot.sim import constants as C
-from tumblebot.sim.design import THESIS_ROBOTS, Design
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.observation import OBS_LAYOUT
-from tumblebot.sim.pb import pybullet
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.robot import RobotModel, build_robot
-from tumblebot.sim.tasks import TaskSpec, get_task
-from tumblebot.sim.terrain import TerrainConfig
-from tumblebot.sim.world import Scene, build_scene
+from tumblebot.sim.world import constants as C
+from tumblebot.sim.world.design import THESIS_ROBOTS, Design
+from tumblebot.sim.world.pb import pybullet
+from tumblebot.sim.world.randomization import Randomization
+from tumblebot.sim.world.robot import RobotModel, build_robot
+from tumblebot.sim.world.scene import Scene, build_scene
+from tumblebot.sim.world.tasks import TaskSpec, get_task
+from tumblebot.sim.world.terrain import TerrainConfig
 
 OBS_FIELDS: tuple[str, ...] = OBS_LAYOUT
 OBS_INDEX: dict[str, int] = {name: i for i, name in enumerate(OBS_FIELDS)}
@@ -484,8 +484,8 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _render_frame(self) -> np.ndarray:
         """The scene, with the floor grid, the goal, the path so far and the step and R
-        (:mod:`tumblebot.sim.render`); navigation from a fixed camera over the arena."""
-        from tumblebot.sim import render
+        (:mod:`tumblebot.sim.world.render`); navigation from a fixed camera over the arena."""
+        from tumblebot.sim.world import render
 
         p, c = self._p, self._client
         width, height = self.render_size

@@ -1,6 +1,6 @@
 """Running batches of episodes for many designs, in a pool that outlives one design.
 
-:func:`tumblebot.sim.evaluate.evaluate` starts worker processes for one design; the
+:func:`tumblebot.sim.evaluation.evaluate.evaluate` starts worker processes for one design; the
 optimiser and the report evaluate thousands of designs, so they use an
 :class:`EpisodeRunner` instead: its workers keep one environment and one ONNX policy per
 task and only change the design between episodes (``reset(options={"design": w})``).
@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.controllers import Controller, episode_seed
-from tumblebot.sim.design import Design
+from tumblebot.sim.control.controllers import Controller, episode_seed
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.physics import PhysicsProfile
-from tumblebot.sim.pool import WorkerPool
-from tumblebot.sim.rollout import Actor, make_actor, run_episode
-from tumblebot.sim.tasks import get_task
+from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.evaluation.rollout import Actor, make_actor, run_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.sim.world.tasks import get_task
 
 Job = tuple[str, tuple[float, float, float, float], int, int]  # task, design, episode index, reset seed
 Result = tuple[str, int, float, tuple[float, float, float]]  # task, episode index, final R, final position
@@ -42,8 +42,8 @@ class _Worker:
     def run(self, job: Job) -> Result:
         task, w, index, seed = job
         if task not in self.envs:
-            from tumblebot.sim.env import TumblerEnv
-            from tumblebot.sim.randomization import Randomization
+            from tumblebot.sim.world.env import TumblerEnv
+            from tumblebot.sim.world.randomization import Randomization
 
             self.envs[task] = TumblerEnv(task=task, randomization=self.servo.randomization(Randomization(design=False)),
                                          **self.servo.env_kwargs())
@@ -65,12 +65,12 @@ def _run_job(worker: _Worker, job: Job) -> Result:
 
 class EpisodeRunner:
     """Runs episodes on any design; reuse it for many designs, on the package's one
-    worker pool (:class:`~tumblebot.sim.pool.WorkerPool`). :func:`tumblebot.sim.evaluate.evaluate`
+    worker pool (:class:`~tumblebot.sim.evaluation.pool.WorkerPool`). :func:`tumblebot.sim.evaluation.evaluate.evaluate`
     runs on it too.
 
     Args:
         controllers: task name → what drives it: an ONNX policy path, or a
-            :class:`~tumblebot.sim.evaluate.Controller` (a policy, a gait or ``goto``).
+            :class:`~tumblebot.sim.evaluation.evaluate.Controller` (a policy, a gait or ``goto``).
             Every task to be run needs one.
         workers: worker processes (1 runs in this process).
         servo: the servo model of every episode (default: DC, the thesis's constants).

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tumblebot.sim.design import Design
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.physics import THESIS, PhysicsProfile
-from tumblebot.sim.randomization import Randomization
-from tumblebot.sim.rollout import make_actor, run_episode
+from tumblebot.sim.evaluation.rollout import make_actor, run_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.physics import THESIS, PhysicsProfile
+from tumblebot.sim.world.randomization import Randomization
 
 
 @dataclass
@@ -48,8 +48,8 @@ def run_gait_episode(
     """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
     the closed-loop navigation controller), with ``physics``'s servo (the floor, latency
     and noise are ``randomization``'s: see :meth:`PhysicsProfile.randomization`)."""
-    from tumblebot.sim.env import TumblerEnv
-    from tumblebot.sim.evaluate import Controller
+    from tumblebot.sim.evaluation.evaluate import Controller
+    from tumblebot.sim.world.env import TumblerEnv
 
     controller = Controller.of_gait(gait)
     controller.check(task)
