@@ -1,9 +1,11 @@
 """One episode rollout for the whole package, and the controllers it drives.
 
-:func:`run_episode` is the only loop that steps an environment through an episode for
-evaluation: :mod:`tumblebot.sim.evaluation.evaluate` (one design, many episodes) and
-:mod:`tumblebot.sim.evaluation.runner` (many designs, a pool that outlives them) both call it. A
-controller is made from its description (:class:`~tumblebot.sim.evaluation.evaluate.Controller`) by
+:func:`run_episode` (reset, then :func:`drive` to the episode's end) is the package's one
+loop that steps an environment through an episode: :mod:`tumblebot.sim.evaluation.evaluate`
+(one design, many episodes), :mod:`tumblebot.sim.evaluation.runner` (many designs, on the
+worker pool), the scripted episodes, the teacher's choice sweep and the imitation teacher
+(whose roll-outs from a snapshot call :func:`drive` mid-episode) all run on it. A
+controller is made from its description (:class:`~tumblebot.sim.control.controllers.Controller`) by
 :func:`make_actor`; every kind answers ``reset(seed, design)`` at the start of an episode
 and ``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the
 step and the seed, a ``thesis`` ONNX policy only the observation, a ``context`` one also
