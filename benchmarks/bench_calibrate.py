@@ -84,7 +84,7 @@ def ad_p(a: np.ndarray, b: np.ndarray) -> float:
 def prediction(holdout: Path, profile: PhysicsProfile) -> tuple[float, float]:
     """Closed loop: the logged final distances to the setpoint against pure simulation of
     the policy from the same starts under ``profile``: (simulated median, p)."""
-    from tumblebot.host.trials import load_index
+    from tumblebot.host.trial_sets import load_index
     from tumblebot.host.twin import simulate_starts
 
     logged = np.array([t["final_error"] for t in load_index(holdout)["trials"]])

@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.host.controller import ControllerConfig, TrialRunner
 from tumblebot.host.link import AgentClient, free_port, load_host_key, new_key
 from tumblebot.host.mocap import open_source
+from tumblebot.host.trial_runner import ControllerConfig, TrialRunner
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter
 from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
 

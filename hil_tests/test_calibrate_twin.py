@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers import tb as run_tumblebot
-from tumblebot.host.trials import load_index
+from tumblebot.host.trial_sets import load_index
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
 
 pytestmark = [pytest.mark.hil, pytest.mark.slow]

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from tests.helpers import tb as run_tumblebot
-from tumblebot.host.controller import ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.link import AgentClient, load_host_key
 from tumblebot.host.mocap import open_source
+from tumblebot.host.trial_runner import ControllerConfig, TrialResult, TrialRunner
+from tumblebot.host.trial_sets import TwinPlacer, load_index
 from tumblebot.host.triallog import read_trial
-from tumblebot.host.trials import TwinPlacer, load_index
 from tumblebot.host.twin import TwinStack
 from tumblebot.sim.world.design import Design
 
@@ -98,7 +98,7 @@ def _connected_client(stack: TwinStack) -> AgentClient:
 
 def test_that_losing_mocap_in_the_twin_has_the_servos_neutral(tmp_path: Path) -> None:
     """Through every process of the stack; the controller's own timer is held to its
-    ``lost_after`` in tests/host/test_controller.py, so here a bound only says how long
+    ``lost_after`` in tests/host/test_trial_runner.py, so here a bound only says how long
     to wait (a busy machine makes every process later)."""
     class Forward:
         def act(self, obs: np.ndarray) -> np.ndarray:

@@ -92,7 +92,7 @@ def read_logged_trial(path: Path, design: tuple[float, float, float, float], dur
 
 def load_trials(folders: list[Path], design: tuple[float, float, float, float] | None = None) -> list[LoggedTrial]:
     """Every finished trial of the sets in ``folders`` (checked all before any work)."""
-    from tumblebot.host.trials import TrialError, load_index
+    from tumblebot.host.trial_sets import TrialError, load_index
 
     out: list[LoggedTrial] = []
     for folder in folders:

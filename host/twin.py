@@ -428,7 +428,7 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: Physics
     prediction): what ``tumblebot evaluate`` does, from these starts. ``per_trial`` holds
     the final errors grouped by trial, in the index's order.
     """
-    from tumblebot.host.trials import TrialPlan, load_index
+    from tumblebot.host.trial_sets import TrialPlan, load_index
     from tumblebot.sim.evaluation.rollout import make_actor, run_episode
     from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.frames import to_task_frame, yaw_quaternion
@@ -518,7 +518,7 @@ def consistency_test(twin_errors: list[float] | np.ndarray, sim_per_trial: list[
 def consistency(folder: Path, episodes_per_trial: int = 16, alpha: float = 0.01) -> dict[str, Any]:
     """Are the twin's setpoint errors consistent with pure simulation from the same starts?
     See :func:`consistency_test`."""
-    from tumblebot.host.trials import summarize
+    from tumblebot.host.trial_sets import summarize
 
     twin = summarize(folder).errors
     sim = simulate_starts(folder, episodes_per_trial)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tumblebot.host.controller import ControllerConfig
+from tumblebot.host.trial_runner import ControllerConfig
+from tumblebot.host.trial_sets import make_plan, open_trial_set
 from tumblebot.host.triallog import TrialLogWriter, write_json_atomic
-from tumblebot.host.trials import make_plan, open_trial_set
 from tumblebot.sim.calibration import Trace, replay
 from tumblebot.sim.control.gaits import EXCITATION
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design

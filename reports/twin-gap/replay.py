@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.host.trial_sets import TrialPlan, load_index
 from tumblebot.host.triallog import read_trial
-from tumblebot.host.trials import TrialPlan, load_index
 from tumblebot.host.twin import twin_servo
 from tumblebot.sim.evaluation.evaluate import episode_seed
 from tumblebot.sim.world.design import Design

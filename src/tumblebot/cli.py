@@ -2,7 +2,7 @@
 
 Each command's options and handler live in the package it belongs to (``sim/commands.py``,
 ``training/commands.py``, ``sim/optimize_command.py``, ``sim/report_command.py``,
-``sim/hardware/commands.py``, ``sim/physics_command.py``, ``host/cli.py``); their shared
+``sim/hardware/commands.py``, ``sim/physics_command.py``, ``host/commands.py``); their shared
 argument types are in :mod:`tumblebot.cliargs`. Any :class:`~tumblebot.errors.TumblebotError`
 becomes one ``tumblebot: error: …`` line and exit status 2, never a traceback; a package
 an extra did not install becomes one line naming the extra. Heavy imports happen inside
@@ -26,7 +26,7 @@ __all__ = ["TASK_NAMES", "build_parser", "main", "missing_extra"]
 
 def build_parser() -> argparse.ArgumentParser:
     from tumblebot import __version__
-    from tumblebot.host.cli import add_commands as add_host_commands
+    from tumblebot.host.commands import add_commands as add_host_commands
     from tumblebot.sim.commands import add_commands as add_sim_commands
     from tumblebot.sim.commands import add_demo_command
     from tumblebot.sim.hardware.commands import add_command as add_build_command

@@ -140,8 +140,8 @@ def test_that_bench_excite_runs_the_identification_run_as_a_trial_set(tmp_path: 
                                                                       agent: tuple[str, Path]) -> None:
     """One start point, one run: the robot (a still mock pose at the start point) is driven by
     the scripted commands, logged like any trial, with the time each command left."""
+    from tumblebot.host.trial_sets import load_index
     from tumblebot.host.triallog import read_trial
-    from tumblebot.host.trials import load_index
     from tumblebot.sim.control.gaits import EXCITATION
 
     address, key = agent

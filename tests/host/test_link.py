@@ -73,7 +73,7 @@ def test_that_a_host_silent_past_the_agents_timeout_says_hello_again_before_comm
 
 
 def test_that_a_host_whose_control_was_taken_stops_its_trial_saying_why() -> None:
-    from tumblebot.host.controller import TrialRunner
+    from tumblebot.host.trial_runner import TrialRunner
 
     body = {"serial_connected": True, "epoch": 3, "controller": 12345}
     fault = TrialRunner.link_fault(body, 3, sender=777)

@@ -11,7 +11,7 @@ import pytest
 
 from tests.helpers import tb
 from tumblebot.host.link import new_key
-from tumblebot.host.trials import load_index
+from tumblebot.host.trial_sets import load_index
 
 
 def run_args(out: Path, address: str, key: Path, *extra: str) -> list[str]:

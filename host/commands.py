@@ -75,11 +75,11 @@ def _trial_policy(args: argparse.Namespace, design: Any, task: str) -> tuple[Any
 
 
 def _trial_run(args: argparse.Namespace) -> int:
-    from tumblebot.host.controller import ControllerConfig, TrialRunner
     from tumblebot.host.link import AgentClient, load_host_key, parse_address
     from tumblebot.host.live import LiveView, parse_listen
     from tumblebot.host.mocap import open_source
-    from tumblebot.host.trials import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
+    from tumblebot.host.trial_runner import ControllerConfig, TrialRunner
+    from tumblebot.host.trial_sets import OperatorPlacer, TwinPlacer, make_plan, open_trial_set, run_trial_set
     from tumblebot.sim.world.design import Design
 
     design = Design.parse(args.design)
@@ -136,7 +136,7 @@ def _trial_run(args: argparse.Namespace) -> int:
 
 
 def _trial_analyze(args: argparse.Namespace) -> int:
-    from tumblebot.host.trials import analyze
+    from tumblebot.host.trial_sets import analyze
 
     stats = None
     given = [args.baseline_mean, args.baseline_sd, args.baseline_n]

@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from tumblebot.errors import TumblebotError
-from tumblebot.host.controller import COMPLETE, ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.mocap import PoseSource
+from tumblebot.host.trial_runner import COMPLETE, ControllerConfig, TrialResult, TrialRunner
 from tumblebot.host.triallog import BackgroundLog, TrialLogWriter, read_trial, write_json_atomic
 from tumblebot.sim.evaluation.stats import mean_ci95
 from tumblebot.sim.world.design import Design

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from tumblebot.defaults import XI3_ROBOT
-from tumblebot.host.controller import ControllerConfig, TrialRunner, _TrialState
 from tumblebot.host.emulator import EmulatedUno
 from tumblebot.host.link import AgentClient
 from tumblebot.host.mocap import encode_pose_datagram, open_source
+from tumblebot.host.trial_runner import ControllerConfig, TrialRunner, _TrialState
 from tumblebot.host.triallog import TrialLogWriter, read_trial
 from tumblebot.pi_agent.agent import Agent, AgentConfig
 from tumblebot.sim.control.policy import OnnxPolicy, bundled_policy
