@@ -2,7 +2,7 @@
 environments' observation wrapper.
 
 The features are declared, by name, in :mod:`tumblebot.sim.control.features` (which also computes
-them in NumPy for :class:`~tumblebot.sim.control.policy.OnnxPolicy`); here they are computed in
+them, in plain Python, for :class:`~tumblebot.sim.control.policy.OnnxPolicy`); here they are computed in
 torch, so they are part of the trained network and of every exported ONNX graph, and the
 policy's input stays the observation layout it was trained on.
 :class:`ContextObservation` builds any design-conditioned input inside the training

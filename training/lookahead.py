@@ -41,6 +41,7 @@ from tumblebot.sim.evaluation.rollout import GotoActor, drive, run_episode
 from tumblebot.sim.world.physics import PhysicsProfile
 
 ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
+_UNSEARCHED = np.full(len(ALL_ACTIONS), np.nan)  #: the scores of a step goto labels (copied into the record)
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ class _Teacher:
             self.searched += 1
         else:
             label = own = self.goto.act(obs, step)
-            scores = np.full(len(ALL_ACTIONS), np.nan)
+            scores = _UNSEARCHED
         self.goto_labels.append(own)
         self.values.append(scores)
         action = label

@@ -6,7 +6,7 @@ quaternion algebra: the body's rotation matrix, and the vector to the origin exp
 the body frame (its direction and length). The layer has no weights. It is declared here,
 once, by name (:data:`FEATURES`), and computed twice: in torch inside the trained network
 (:mod:`tumblebot.training.features`, so it is part of every exported ONNX graph), and in
-NumPy by :func:`compute` here, which :class:`~tumblebot.sim.control.policy.OnnxPolicy` runs ahead
+plain Python by :func:`compute` here, which :class:`~tumblebot.sim.control.policy.OnnxPolicy` runs ahead
 of the graph's MLP alone: the feature layer is about 220 tiny graph nodes, each with
 onnxruntime's per-call cost, and evaluation pays it at every step.
 

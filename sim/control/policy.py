@@ -220,7 +220,8 @@ class OnnxPolicy:
             self.layout = layout_named(observation.get("fields", ()))
         except PolicyError as exc:
             raise PolicyError(f"policy {path}: {exc}") from None
-        digest = sha256_of(path)
+        graph = path.read_bytes()  # read once: the bytes hashed are the bytes run
+        digest = hashlib.sha256(graph).hexdigest()
         if card.get("onnx_sha256") != digest:
             raise PolicyError(f"policy {path} does not match its model card (SHA-256 {digest[:12]}…, "
                               f"card says {str(card.get('onnx_sha256'))[:12]}…): corrupt or replaced file")
@@ -230,7 +231,7 @@ class OnnxPolicy:
         options.intra_op_num_threads = 1
         options.inter_op_num_threads = 1
         try:
-            self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types
             raise PolicyError(f"policy {path} cannot be loaded by onnxruntime: {exc}") from None
         self.path = path
@@ -242,7 +243,7 @@ class OnnxPolicy:
                               f"{len(LAYOUTS[self.layout])} numbers its card declares")
         self._input = inputs[0].name
         self.context = ObservationContext(self.layout)
-        self._mlp, self._features = _split_after_features(path, self.layout, options)
+        self._mlp, self._features = _split_after_features(graph, self.layout, options)
         if self._mlp is not None and not self._split_agrees():
             self._mlp = None  # a feature layer other than tumblebot.sim.control.features': the whole graph
         self._design: tuple[float, ...] | None = None
@@ -271,7 +272,7 @@ class OnnxPolicy:
         return np.asarray(out[0], dtype=np.int64)
 
     def _split_agrees(self, n: int = 512) -> bool:
-        """Whether the NumPy features and the graph's MLP give the whole graph's actions on
+        """Whether :func:`features.compute` and the graph's MLP give the whole graph's actions on
         ``n`` fixed inputs (positions and legs' commands spread over their ranges)."""
         rng = np.random.default_rng(0)
         x = rng.uniform(-2.0, 2.0, size=(n, len(LAYOUTS[self.layout]))).astype(np.float32)
@@ -284,12 +285,12 @@ class OnnxPolicy:
 
     @property
     def split(self) -> bool:
-        """Whether :meth:`act` runs the feature layer in NumPy and the graph's MLP alone."""
+        """Whether :meth:`act` computes the feature layer itself and runs the graph's MLP alone."""
         return self._mlp is not None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The action for the thesis observation ``obs`` before the next step: the feature
-        layer in NumPy (:mod:`tumblebot.sim.control.features`), then the graph's MLP alone: the
+        layer in plain Python (:mod:`tumblebot.sim.control.features`), then the graph's MLP alone: the
         whole graph's action (checked when the policy loads) for a fraction of
         onnxruntime's per-node cost (:attr:`split`)."""
         x = self.context(obs)
@@ -300,7 +301,7 @@ class OnnxPolicy:
         return action
 
 
-def _split_after_features(path: Path, layout: str, options: Any) -> tuple[Any, str]:
+def _split_after_features(graph: bytes, layout: str, options: Any) -> tuple[Any, str]:
     """The graph after the feature layer, as its own onnxruntime session, and the name of
     its input: the first matrix product with a constant weight takes the features. ``(None,
     "")`` when the graph has no such point of the expected width (then :meth:`OnnxPolicy.act`
@@ -309,7 +310,7 @@ def _split_after_features(path: Path, layout: str, options: Any) -> tuple[Any, s
     import onnxruntime as ort
     from onnx import numpy_helper, utils
 
-    model = onnx.load(str(path))
+    model = onnx.load_from_string(graph)
     weights = {w.name: w for w in model.graph.initializer}
     for node in model.graph.node:
         if node.op_type in ("Gemm", "MatMul") and len(node.input) > 1 and node.input[1] in weights:

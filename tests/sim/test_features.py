@@ -1,4 +1,4 @@
-"""The policy's feature layer in NumPy ahead of the graph's MLP: the same actions as the whole graph."""
+"""The policy's feature layer computed in Python ahead of the graph's MLP: the same actions as the whole graph."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def test_that_every_layout_has_its_named_features(layout: str) -> None:
 @pytest.mark.parametrize("path", POLICIES, ids=lambda p: p.stem)
 def test_that_act_gives_the_whole_graphs_action_at_every_step_of_episodes(path: Path) -> None:
     policy = OnnxPolicy(path)
-    assert policy.split, "the bundled policies run their feature layer in NumPy"
+    assert policy.split, "the bundled policies compute their feature layer themselves"
     task = str(policy.task)
     env = TumblerEnv(task=task, randomization=Randomization(design=True))
     reference = OnnxPolicy(path)  # drives the episodes through the whole graph
@@ -57,7 +57,7 @@ def test_that_a_graph_whose_feature_layer_is_not_ours_runs_whole(tmp_path: Path)
 
     source = bundled_policy("nav-flat", layout="thesis")
     model = onnx.load(str(source))
-    # Double the position before the feature layer: the NumPy features no longer match
+    # Double the position before the feature layer: the computed features no longer match
     # the graph's, and the load-time check must notice and keep the whole graph.
     first = model.graph.input[0].name
     model.graph.node.insert(0, helper.make_node("Mul", [first, "two"], ["doubled"]))

@@ -1,4 +1,4 @@
-"""The feature layer in NumPy (the deployed policy's) against torch's (the trained network's)."""
+"""The feature layer in plain Python (the deployed policy's) against torch's (the trained network's)."""
 
 from __future__ import annotations
 
