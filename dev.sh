@@ -111,7 +111,7 @@ case "$cmd" in
         "$VENV/bin/lint-imports"
         echo "dev.sh: pytest"
         # pytest exits 5 when it collects nothing; that is a failure here too.
-        "$VENV/bin/python" -m pytest "$@"
+        "$VENV/bin/python" -m pytest --durations=25 "$@"
         ;;
     *)
         sed -n "2,15p" "$0"

@@ -12,6 +12,7 @@ from typing import Any
 from tumblebot.defaults import XI3_ROBOT_TEXT
 from tumblebot.errors import TumblebotError
 from tumblebot.paths import check_writable_folder
+from tumblebot.pi_agent.protocol import NEUTRAL_SPREAD_US, NEUTRAL_US
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -195,10 +196,10 @@ def _twin_run(args: argparse.Namespace) -> int:
     from tumblebot.sim.world.design import Design
 
     servo = _servo_of(args)
-    from tumblebot.sim.evaluation.evaluate import Controller
+    from tumblebot.sim.evaluation.evaluate import Driver
 
     if args.policy != "excite":
-        Controller("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
+        Driver("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
     elif args.check:
         raise TumblebotError("--check compares a policy's trials with simulation; the identification run (--policy "
                              "excite) is for tumblebot calibrate")
@@ -405,7 +406,7 @@ def _add_bench_commands(sub: Any) -> None:
     c.add_argument("--mocap", help="pose source, as for trial run (udp://HOST:PORT?body=B, motioncapture://…)")
     c.add_argument("--neutral-us", type=_neutral_int_pair, metavar="RIGHT,LEFT",
                    help="the servos' neutral pulses the trim procedure found, µs: the trims must be these "
-                        "(default: each within 50 µs of 1500)")
+                        f"(default: each within {NEUTRAL_SPREAD_US} µs of {NEUTRAL_US})")
     c.set_defaults(func=_bench_check)
     e = bsub.add_parser("excite", help="the identification run: scripted drives, spins and stops, logged for calibrate",
                         description="A trial set of scripted commands instead of a policy: drives both ways, spins "
@@ -610,8 +611,9 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     w.add_argument("--serial-link", type=Path, required=True, help="path for a symlink to the firmware's pty")
     w.add_argument("--design", required=True)
     w.add_argument("--seed", type=int, default=0)
-    w.add_argument("--servo-neutral", type=_neutral_pair, default=(1500.0, 1500.0), metavar="RIGHT,LEFT",
-                   help="the world's servos' own neutral pulses, µs (default 1500,1500): one the firmware's trim "
+    w.add_argument("--servo-neutral", type=_neutral_pair, default=(float(NEUTRAL_US),) * 2, metavar="RIGHT,LEFT",
+                   help=f"the world's servos' own neutral pulses, µs (default {NEUTRAL_US},{NEUTRAL_US}): one the "
+                        "firmware's trim "
                         "does not match creeps")
     w.add_argument("--world-physics", metavar="PROFILE", help="the world's physics profile (name or JSON file)")
     w.add_argument("--pose-key", type=Path, metavar="FILE", help="sign the pose stream with this key file")

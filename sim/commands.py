@@ -120,7 +120,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     import json
 
     from tumblebot.sim.control.policy import PolicyError, bundled_policy
-    from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+    from tumblebot.sim.evaluation.evaluate import Driver, evaluate
     from tumblebot.sim.world.design import Design
     from tumblebot.sim.world.tasks import get_task
 
@@ -134,12 +134,12 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise TumblebotError(f"--xi {args.xi} must be >= 0 (or inf)")
     servo = profile_from_args(args)
     if args.gait is not None:
-        controller = Controller.of_gait(args.gait)
+        controller = Driver.of_gait(args.gait)
     else:
         path = args.policy or bundled_policy(task.name)
         if args.policy is None and not path.is_file():
             raise PolicyError(f"no bundled policy for {task.name} ({path.name}); pass --policy FILE")
-        controller = Controller("onnx", str(path), allow_servo_mismatch=args.allow_servo_mismatch)
+        controller = Driver("onnx", str(path), allow_servo_mismatch=args.allow_servo_mismatch)
     if args.csv is not None:
         check_writable(args.csv, "--csv")
     result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json,

@@ -24,15 +24,15 @@ DEMO_GAITS: dict[str, str] = {"nav-flat": "alternate", "nav-terrain": "alternate
 def _bundled_policies(out: TextIO, robot: Design, seed: int, episodes: int = 12) -> None:
     """The bundled ONNX policies on the same robot, against the same scripted gaits."""
     from tumblebot.sim.control.policy import bundled_policy
-    from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+    from tumblebot.sim.evaluation.evaluate import Driver, evaluate
 
     rows = []
     for name in TASKS:
         path = bundled_policy(name)
         if not path.is_file():
             continue
-        pol = evaluate(name, robot, Controller("onnx", str(path)), episodes, seed)
-        gait = evaluate(name, robot, Controller("gait", DEMO_GAITS[name]), episodes, seed)
+        pol = evaluate(name, robot, Driver("onnx", str(path)), episodes, seed)
+        gait = evaluate(name, robot, Driver("gait", DEMO_GAITS[name]), episodes, seed)
         rows.append((name, pol, gait))
     if not rows:
         out.write("No bundled policies yet (policies/TASK.onnx); train one with `tumblebot train`.\n\n")

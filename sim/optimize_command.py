@@ -6,8 +6,9 @@ import argparse
 import math
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tumblebot.cliargs import (
     Subcommands,
@@ -17,12 +18,28 @@ from tumblebot.cliargs import (
     seed_type,
 )
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.world.physics import profile_from_args
+from tumblebot.sim.world.physics import PhysicsProfile, profile_from_args
+
+if TYPE_CHECKING:  # the optimiser (Optuna, SciPy) loads only when a study runs
+    from tumblebot.sim.control.drivers import Driver
+    from tumblebot.sim.optimize import Objective, Recipe, StudyConfig
 
 
-def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, Any], Any, str, str]:
-    """``optimize``'s arguments checked, before any study is opened or written: the
-    objective, recipe, servo, controllers, study config, study name and storage URL."""
+@dataclass(frozen=True)
+class OptimizePlan:
+    """``optimize``'s arguments, checked: what the study runs and where it is stored."""
+
+    objective: Objective
+    recipe: Recipe
+    servo: PhysicsProfile
+    drivers: dict[str, Driver]  #: task → what drives its episodes
+    config: StudyConfig  #: what the study stores and checks on resume
+    name: str  #: the study's name
+    storage_url: str
+
+
+def _optimize_plan(args: argparse.Namespace) -> OptimizePlan:
+    """``optimize``'s arguments checked, before any study is opened or written."""
     import os
 
     from tumblebot.sim.control.policy import sha256_of
@@ -36,7 +53,7 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
         parse_tasks,
         parse_xi,
         parse_xi_list,
-        study_controllers,
+        study_drivers,
     )
 
     if args.front is not None and args.xi is not None:
@@ -61,14 +78,14 @@ def _optimize_plan(args: argparse.Namespace) -> tuple[Any, Any, Any, dict[str, A
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
     controller = args.gait or ("thesis-policy" if args.thesis_policies else "policy")
-    controllers = study_controllers(controller, objective.tasks, args.allow_servo_mismatch, servo)
-    policies = {t: Path(c.name) for t, c in controllers.items() if c.kind == "onnx"}
+    drivers = study_drivers(controller, objective.tasks, args.allow_servo_mismatch, servo)
+    policies = {t: Path(c.name) for t, c in drivers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
                             controller=controller, servo=servo)
     suffix = "-front" if objective.front else f"-xi{format_xi(objective.xi)}"
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + suffix
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
-    return objective, recipe, servo, controllers, config, name, storage_url
+    return OptimizePlan(objective, recipe, servo, drivers, config, name, storage_url)
 
 
 def _optimize_bar(trials: int, quiet: bool) -> tuple[Any, Callable[[Any], None]]:
@@ -104,13 +121,14 @@ def _optimize(args: argparse.Namespace) -> int:
     )
     from tumblebot.sim.optimize.storage import redact_url
 
-    objective, recipe, servo, controllers, config, name, storage_url = _optimize_plan(args)
+    plan = _optimize_plan(args)
+    objective, recipe, name, storage_url = plan.objective, plan.recipe, plan.name, plan.storage_url
     stop = StopFlag()
     with stop.installed():  # from here on Ctrl-C only asks; the work stops at its next safe point
         if stop():  # Ctrl-C while the command was starting up: stop before the study is opened
             print("stopped before the study was opened", file=sys.stderr)
             return 130
-        study = open_study(open_storage(storage_url, writable=True), name, config)
+        study = open_study(open_storage(storage_url, writable=True), name, plan.config)
         stored = load_config(study)
         if args.startup is None and stored is not None and stored.startup != recipe.startup:
             recipe = dataclasses.replace(recipe, startup=stored.startup)  # keep the study's schedule on resume
@@ -123,7 +141,7 @@ def _optimize(args: argparse.Namespace) -> int:
         bar, show = _optimize_bar(recipe.trials, args.quiet)
         runner = None
         try:
-            runner = EpisodeRunner(controllers, workers=args.workers, servo=servo) if objective.tasks else None
+            runner = EpisodeRunner(plan.drivers, workers=args.workers, servo=plan.servo) if objective.tasks else None
             result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
                               episode_budget=args.episode_budget, should_stop=stop)
         except (StopRequested, KeyboardInterrupt):

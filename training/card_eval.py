@@ -16,7 +16,7 @@ from scipy import stats
 from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.control.goto import NAVIGATION_TASKS
 from tumblebot.sim.control.policy import card_path
-from tumblebot.sim.evaluation.evaluate import Controller, EvalResult, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
@@ -76,9 +76,9 @@ def goto_comparison(policy: Path, task: str, designs: dict[str, Design], episode
     ``known`` holds the policy's results already measured on these episodes, by design."""
     rows: list[dict[str, Any]] = []
     for label, design in designs.items():
-        pol = (known or {}).get(design) or evaluate(task, design, Controller("onnx", str(policy)), episodes, seed,
+        pol = (known or {}).get(design) or evaluate(task, design, Driver("onnx", str(policy)), episodes, seed,
                                                     workers, progress=True)
-        goto = evaluate(task, design, Controller("goto", "goto"), episodes, seed, workers, progress=True)
+        goto = evaluate(task, design, Driver("goto", "goto"), episodes, seed, workers, progress=True)
         rows.append({"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
                      "goto_mean_R": goto.mean_R, "difference": pol.mean_R - goto.mean_R,
                      "p_paired": _paired_p(pol, goto)})
@@ -128,7 +128,7 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
     if not entry or entry.get("design") != design.as_dict() or "baselines" not in entry:
         return None
     best = entry["best_fixed_gait"]
-    check = evaluate(task, design, Controller("gait", best), episodes, seed, workers, progress=True, servo=servo)
+    check = evaluate(task, design, Driver("gait", best), episodes, seed, workers, progress=True, servo=servo)
     if check.mean_R != entry["baselines"][best]["mean_R"]:
         return None
     return {"baselines": entry["baselines"], "best_fixed_gait": best}
@@ -143,7 +143,7 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     measured: dict[Design, EvalResult] = {}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
-        pol = evaluate(task, design, Controller("onnx", str(policy)), episodes, seed, workers, progress=True,
+        pol = evaluate(task, design, Driver("onnx", str(policy)), episodes, seed, workers, progress=True,
                        servo=servo)
         measured[design] = pol
         entry = pol.summary()
@@ -154,7 +154,7 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
             entry["p_vs_best_fixed_gait"] = _welch_from_summary(pol, base[recorded["best_fixed_gait"]], episodes)
             entry["p_vs_random_policy"] = _welch_from_summary(pol, base["random"], episodes)
         else:
-            gaits = {g: evaluate(task, design, Controller("gait", g), episodes, seed, workers, progress=True,
+            gaits = {g: evaluate(task, design, Driver("gait", g), episodes, seed, workers, progress=True,
                                  servo=servo) for g in [*FIXED_GAITS, "random"]}
             best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
             entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}

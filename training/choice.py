@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.control.controllers import episode_seed
+from tumblebot.sim.control.drivers import episode_seed
 from tumblebot.sim.control.goto import GotoConfig, GotoController
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.sim.evaluation.rollout import GotoActor, run_episode

@@ -78,6 +78,10 @@ ERROR_STRUCT = struct.Struct("<BH")
 #: neutral trim may take.
 NEUTRAL_US, FULL_SPEED_US = 1500, 500
 NEUTRAL_MIN_US, NEUTRAL_MAX_US = 1300, 1700
+#: How far a servo's own neutral may lie from nominal (the catalogue's servos stop within
+#: 1480–1520 µs, and a trim pot adjusts a few tens of µs): ``bench check`` calls a trim
+#: farther off an error.
+NEUTRAL_SPREAD_US = 50
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from tumblebot.sim.control.policy import bundled_policy, sha256_of
-from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, evaluate
 from tumblebot.sim.world.constants import STALL_TORQUE
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -56,13 +56,13 @@ def main() -> None:
     designs = {f"thesis ξ = {xi} robot": w for xi, w in THESIS_ROBOTS.items()}
     if args.studies:
         designs.update(study_optima(args.studies))
-    policy = Controller("onnx", str(bundled_policy("nav-flat")))
+    policy = Driver("onnx", str(bundled_policy("nav-flat")))
     rows: list[dict[str, Any]] = []
     started = time.time()
     for label, w in designs.items():
         row: dict[str, Any] = {"design": label, "w": list(w.as_tuple()), "goto": {}, "policy": {}}
         for name, servo in SERVOS.items():
-            r = evaluate("nav-flat", w, Controller.of_gait("goto"), args.episodes, 0, args.workers, servo=servo)
+            r = evaluate("nav-flat", w, Driver.of_gait("goto"), args.episodes, 0, args.workers, servo=servo)
             row["goto"][name] = {"mean_R": r.mean_R, "ci95": list(r.ci95)}
             print(f"{label:<40} goto   {name:<36} {r.mean_R:.3f}", flush=True)
         r = evaluate("nav-flat", w, policy, args.episodes, 0, args.workers)

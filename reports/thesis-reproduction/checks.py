@@ -2,7 +2,7 @@
 
 Run from the repository root: ``.venv/bin/python reports/thesis-reproduction/checks.py``
 
-* **Controller robustness.** The per-ξ optima of the front study searched with the bundled
+* **Driver robustness.** The per-ξ optima of the front study searched with the bundled
   policy and of the same front study searched with ``goto`` (the hand-written controller),
   each evaluated under *both* controllers on the same 240 fresh episodes (seed 1). Where the
   two searches chose different bodies, the paired tests say whether the choice matters
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.control.policy import bundled_policy
-from tumblebot.sim.evaluation.evaluate import Controller
+from tumblebot.sim.evaluation.evaluate import Driver
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import front_optima, load_study, open_storage
 from tumblebot.sim.report import paired_p
@@ -62,7 +62,7 @@ def robustness(args: argparse.Namespace) -> dict[str, Any]:
     optima = {name: front_optima(load_study(storage, study), XIS)
               for name, study in (("policy", args.policy_study), ("goto", args.goto_study))}
     runners = {"policy": EpisodeRunner({TASK: bundled_policy(TASK)}, workers=args.workers),
-               "goto": EpisodeRunner({TASK: Controller.of_gait("goto")}, workers=args.workers)}
+               "goto": EpisodeRunner({TASK: Driver.of_gait("goto")}, workers=args.workers)}
     cache: dict[tuple[str, tuple[float, ...]], np.ndarray] = {}
 
     def R(controller: str, d: Design) -> np.ndarray:
@@ -139,7 +139,7 @@ def render(data: dict[str, Any]) -> str:
     lines = ["# Robustness checks of the reproduction", "",
              f"Written by `checks.py` ({data['date']}). Every R is on {data['robustness']['episodes']} fresh "
              f"episodes (seed {data['robustness']['seed']}), the same for every design; p: paired t-test.", "",
-             "## Controller robustness: the optimum under the policy against the optimum under goto", "",
+             "## Driver robustness: the optimum under the policy against the optimum under goto", "",
              "| ξ | policy's optimum | goto's optimum | same body | under the policy: objective (R) of each, p "
              "| under goto: objective (R) of each, p |", "|---|---|---|---|---|---|"]
     for row in data["robustness"]["rows"]:

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.evaluation.evaluate import Controller
+from tumblebot.sim.evaluation.evaluate import Driver
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import open_storage
 from tumblebot.sim.report import paired_p
@@ -49,8 +49,8 @@ STUDIES = {"nav-flat": "nav-flat-front", "nav-terrain": "nav-terrain-xi0", "dist
 SERVOS = {"realistic (dc, 0.58 N·m)": PhysicsProfile(),
           "strong (velocity, 10 N·m)": PhysicsProfile.of("velocity", 10.0)}
 #: the controller of each task (no training needed, so any servo)
-CONTROLLERS = {"nav-flat": Controller.of_gait("goto"), "distance-flat": Controller.of_gait("forward"),
-               "incline": Controller.of_gait("forward")}
+CONTROLLERS = {"nav-flat": Driver.of_gait("goto"), "distance-flat": Driver.of_gait("forward"),
+               "incline": Driver.of_gait("forward")}
 
 
 def bodies(storage_url: str) -> dict[str, Design]:

@@ -57,8 +57,8 @@ NAVIGATION_TASKS: tuple[str, ...] = tuple(name for name, task in TASKS.items() i
 #: thesis's ξ = 3 robot does under the default servo. The first observed step overrides half.
 PRIOR_STEP_LENGTH = 0.25
 PRIOR_SPIN_RATE = 0.35
-_STALLED_RATE = 0.05  #: rad a step: a spin turning less than this is taken as stalled
-_MIN_STEP_LENGTH = 0.05
+STALLED_RATE = 0.05  #: rad a step: a spin turning less than this is taken as stalled
+MIN_STEP_LENGTH = 0.05
 
 
 def wrap_angle(angle: float) -> float:
@@ -157,7 +157,7 @@ class GotoController:
     def _turn(self, error: float, drive: Action, gain: float) -> Action:
         """The spin that is seen to turn toward ``error``'s sign; if none does, drive
         when that helps, else try the spin that stalls least."""
-        turning = [a for a, rate in self.spin_rate.items() if rate * error > 0 and abs(rate) > _STALLED_RATE]
+        turning = [a for a, rate in self.spin_rate.items() if rate * error > 0 and abs(rate) > STALLED_RATE]
         if turning:
             return turning[0]
         if gain > 0:
@@ -179,7 +179,7 @@ class GotoController:
         self.motion.observe(position, psi, self._action)
         distance = float(np.hypot(*position))
         steps_left = cfg.episode_steps - step
-        length = max(self.step_length, _MIN_STEP_LENGTH)
+        length = max(self.step_length, MIN_STEP_LENGTH)
         action = STOP
         if distance >= cfg.stop_fraction * length and steps_left > 1:
             bearing = math.atan2(-position[1], -position[0])

@@ -48,10 +48,10 @@ def run_gait_episode(
     """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
     the closed-loop navigation controller), with ``physics``'s servo (the floor, latency
     and noise are ``randomization``'s: see :meth:`PhysicsProfile.randomization`)."""
-    from tumblebot.sim.evaluation.evaluate import Controller
+    from tumblebot.sim.evaluation.evaluate import Driver
     from tumblebot.sim.world.env import TumblerEnv
 
-    controller = Controller.of_gait(gait)
+    controller = Driver.of_gait(gait)
     controller.check(task)
     actor = make_actor(controller.kind, controller.name, task)
     env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.control.controllers import Controller, episode_seed
+from tumblebot.sim.control.drivers import Driver, episode_seed
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.evaluation.stats import mean_ci95
@@ -25,7 +25,7 @@ from tumblebot.sim.world.physics import PhysicsProfile
 from tumblebot.sim.world.power import energy_per_metre
 from tumblebot.sim.world.tasks import get_task
 
-__all__ = ["Controller", "EvalResult", "episode_seed", "evaluate"]
+__all__ = ["Driver", "EvalResult", "episode_seed", "evaluate"]
 
 
 @dataclass
@@ -83,7 +83,7 @@ class EvalResult:
         return out
 
 
-def evaluate(task: str, design: Design, controller: Controller, episodes: int, seed: int = 0,
+def evaluate(task: str, design: Design, controller: Driver, episodes: int, seed: int = 0,
              workers: int = 1, progress: bool = False, servo: PhysicsProfile | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
     spec = get_task(task)

@@ -5,7 +5,7 @@ loop that steps an environment through an episode: :mod:`tumblebot.sim.evaluatio
 (one design, many episodes), :mod:`tumblebot.sim.evaluation.runner` (many designs, on the
 worker pool), the scripted episodes, the teacher's choice sweep and the imitation teacher
 (whose roll-outs from a snapshot call :func:`drive` mid-episode) all run on it. A
-controller is made from its description (:class:`~tumblebot.sim.control.controllers.Controller`) by
+controller is made from its description (:class:`~tumblebot.sim.control.drivers.Driver`) by
 :func:`make_actor`; every kind answers ``reset(seed, design)`` at the start of an episode
 and ``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the
 step and the seed, a ``thesis`` ONNX policy only the observation, a ``context`` one also

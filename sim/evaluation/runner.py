@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.control.controllers import Controller, episode_seed
+from tumblebot.sim.control.drivers import Driver, episode_seed
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.sim.evaluation.rollout import Actor, make_actor, run_episode
@@ -34,7 +34,7 @@ Result = tuple[str, int, float, tuple[float, float, float]]  # task, episode ind
 class _Worker:
     """One process's environments and controllers, one per task, reused across designs."""
 
-    def __init__(self, controllers: dict[str, Controller], servo: PhysicsProfile) -> None:
+    def __init__(self, controllers: dict[str, Driver], servo: PhysicsProfile) -> None:
         self.controllers, self.servo = controllers, servo
         self.envs: dict[str, Any] = {}
         self.actors: dict[str, Actor] = {}
@@ -70,21 +70,21 @@ class EpisodeRunner:
 
     Args:
         controllers: task name → what drives it: an ONNX policy path, or a
-            :class:`~tumblebot.sim.evaluation.evaluate.Controller` (a policy, a gait or ``goto``).
+            :class:`~tumblebot.sim.control.drivers.Driver` (a policy, a gait or ``goto``).
             Every task to be run needs one.
         workers: worker processes (1 runs in this process).
         servo: the servo model of every episode (default: DC, the thesis's constants).
     """
 
-    def __init__(self, controllers: Mapping[str, Path | str | Controller], workers: int = 1,
+    def __init__(self, controllers: Mapping[str, Path | str | Driver], workers: int = 1,
                  servo: PhysicsProfile | None = None) -> None:
         if workers < 1:
             raise SimError(f"workers={workers} must be at least 1")
         self.servo = servo or PhysicsProfile()
-        specs: dict[str, Controller] = {}
+        specs: dict[str, Driver] = {}
         for task, c in controllers.items():
             name = get_task(task).name
-            spec = c if isinstance(c, Controller) else Controller("onnx", str(c))
+            spec = c if isinstance(c, Driver) else Driver("onnx", str(c))
             spec.check(name, self.servo)  # fail fast, in this process, with a clear error
             specs[name] = spec
         self.controllers = specs

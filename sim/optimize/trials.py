@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tumblebot.sim.evaluation.evaluate import Controller
+from tumblebot.sim.evaluation.evaluate import Driver
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
 from tumblebot.sim.optimize.storage import TrialRecord, load_config, promotions
@@ -173,17 +173,17 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
     return max(cands, key=lambda c: c.value) if cands else None
 
 
-def study_controllers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
-                      servo: PhysicsProfile | None = None) -> dict[str, Controller]:
+def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
+                  servo: PhysicsProfile | None = None) -> dict[str, Driver]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
     (the bundled ones with the thesis observation) or a gait name (``goto`` included), as
-    a task → :class:`Controller` map, each checked for its task and ``servo`` (here,
+    a task → :class:`Driver` map, each checked for its task and ``servo`` (here,
     before a study is opened or written)."""
     if controller in ("policy", "thesis-policy"):
-        out = {t: Controller("onnx", str(p), allow_servo_mismatch)
+        out = {t: Driver("onnx", str(p), allow_servo_mismatch)
                for t, p in bundled_policies(tasks, thesis=controller == "thesis-policy").items()}
     else:
-        out = {t: Controller.of_gait(controller) for t in tasks}
+        out = {t: Driver.of_gait(controller) for t in tasks}
     for t, c in out.items():
         c.check(t, servo)
     return out

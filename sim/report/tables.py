@@ -24,7 +24,7 @@ from tumblebot.sim.optimize import (
     load_config,
     load_study,
     promotions,
-    study_controllers,
+    study_drivers,
     value_at,
 )
 from tumblebot.sim.world.design import BOUNDS, PARAMETERS, THESIS_ROBOTS, Design
@@ -107,7 +107,7 @@ class Evaluator:
                  allow_servo_mismatch: bool = False) -> None:
         from tumblebot.sim.evaluation.runner import EpisodeRunner
 
-        self.runner = (EpisodeRunner(study_controllers(controller, tasks, allow_servo_mismatch), workers=workers,
+        self.runner = (EpisodeRunner(study_drivers(controller, tasks, allow_servo_mismatch), workers=workers,
                                      servo=servo)
                        if tasks else None)
         self.episodes, self.seed = episodes, seed

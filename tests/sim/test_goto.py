@@ -10,7 +10,7 @@ from tumblebot.cli import main
 from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.control.goto import FORWARD, SPIN_NEGATIVE, SPIN_POSITIVE, STOP, GotoConfig, GotoController, heading
 from tumblebot.sim.errors import SimError
-from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, evaluate
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -70,14 +70,14 @@ def test_that_goto_gives_up_a_spin_that_stalls_and_tries_the_other() -> None:
 
 
 def test_that_goto_reaches_the_goal_with_the_thesis_xi3_robot() -> None:
-    result = evaluate("nav-flat", XI3, Controller.of_gait("goto"), episodes=24, seed=0)
+    result = evaluate("nav-flat", XI3, Driver.of_gait("goto"), episodes=24, seed=0)
     assert result.mean_R > 0.75, result.R  # 0.86 on 96 episodes
 
 
 def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_one_does_not() -> None:
-    strong = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0,
+    strong = evaluate("nav-flat", XI0, Driver.of_gait("goto"), episodes=12, seed=0,
                       servo=PhysicsProfile.of("velocity", 10.0))
-    realistic = evaluate("nav-flat", XI0, Controller.of_gait("goto"), episodes=12, seed=0)
+    realistic = evaluate("nav-flat", XI0, Driver.of_gait("goto"), episodes=12, seed=0)
     assert strong.mean_R > 0.7 and realistic.mean_R < 0.5, (strong.R, realistic.R)
 
 

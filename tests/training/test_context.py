@@ -18,7 +18,7 @@ import pytest
 from tumblebot.cli import main
 from tumblebot.sim.control.goto import FORWARD, NAVIGATION_TASKS, SPIN_POSITIVE, GotoController
 from tumblebot.sim.control.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError, bundled_policy
-from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, evaluate
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design
 from tumblebot.sim.world.env import TumblerEnv
 from tumblebot.sim.world.randomization import Randomization
@@ -226,7 +226,7 @@ def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_netw
         proposals = len(LAYOUTS[layout]) - len(LAYOUTS["memory"])
         x[:, -proposals:] = np.random.default_rng(1).integers(0, 3, size=(10_000, proposals))
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
-    result = evaluate("nav-flat", XI3, Controller("onnx", str(out)), episodes=2, seed=0, workers=1)
+    result = evaluate("nav-flat", XI3, Driver("onnx", str(out)), episodes=2, seed=0, workers=1)
     assert np.isfinite(result.mean_R)
 
 
@@ -303,8 +303,8 @@ def test_that_onnx_equals_sb3_on_10000_context_inputs(tiny_dagger: Path, context
 
 
 def test_that_evaluation_feeds_a_context_policy_the_design_and_is_worker_independent(context_policy: Path) -> None:
-    one = evaluate("nav-flat", XI3, Controller("onnx", str(context_policy)), 6, seed=2, workers=1)
-    two = evaluate("nav-flat", XI3, Controller("onnx", str(context_policy)), 6, seed=2, workers=2)
+    one = evaluate("nav-flat", XI3, Driver("onnx", str(context_policy)), 6, seed=2, workers=1)
+    two = evaluate("nav-flat", XI3, Driver("onnx", str(context_policy)), 6, seed=2, workers=2)
     np.testing.assert_array_equal(one.R, two.R)
 
 
@@ -348,13 +348,13 @@ def test_that_the_randomised_training_designs_reach_the_context_input() -> None:
 
 
 def test_that_the_thesis_observation_policies_stay_bundled_under_their_own_name() -> None:
-    from tumblebot.sim.optimize import study_controllers
+    from tumblebot.sim.optimize import study_drivers
 
     for task in NAVIGATION_TASKS:
         assert OnnxPolicy(bundled_policy(task, "thesis"), task=task).layout == "thesis"
-    for task, controller in study_controllers("thesis-policy", ["nav-flat", "incline"]).items():
+    for task, controller in study_drivers("thesis-policy", ["nav-flat", "incline"]).items():
         assert OnnxPolicy(Path(controller.name), task=task).layout == "thesis"
-    best = study_controllers("policy", ["nav-flat"])["nav-flat"]
+    best = study_drivers("policy", ["nav-flat"])["nav-flat"]
     assert Path(best.name) == bundled_policy("nav-flat")
 
 

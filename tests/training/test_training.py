@@ -16,7 +16,7 @@ import pytest
 
 from tumblebot.cli import main
 from tumblebot.sim.control.policy import OBS_LAYOUT, OnnxPolicy, PolicyError
-from tumblebot.sim.evaluation.evaluate import Controller, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, evaluate
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import OBS_FIELDS, TumblerEnv
 from tumblebot.training.config import TrainConfig, TrainingError
@@ -120,10 +120,10 @@ def test_that_onnx_actions_equal_sb3_deterministic_predict_on_10000_observations
 
 def test_that_evaluation_is_identical_whatever_the_number_of_workers(tiny_policy: Path) -> None:
     w = Design.parse(XI3)
-    one = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=3, workers=1)
-    two = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=3, workers=2)
+    one = evaluate("nav-flat", w, Driver("onnx", str(tiny_policy)), 6, seed=3, workers=1)
+    two = evaluate("nav-flat", w, Driver("onnx", str(tiny_policy)), 6, seed=3, workers=2)
     np.testing.assert_array_equal(one.R, two.R)
-    other_seed = evaluate("nav-flat", w, Controller("onnx", str(tiny_policy)), 6, seed=4, workers=1)
+    other_seed = evaluate("nav-flat", w, Driver("onnx", str(tiny_policy)), 6, seed=4, workers=1)
     assert not np.array_equal(one.R, other_seed.R)
 
 

@@ -1,6 +1,6 @@
 """What drives the robot in an episode, and which episode is which.
 
-:class:`Controller` names an ONNX policy, a scripted gait or ``goto`` (picklable, so worker
+:class:`Driver` names an ONNX policy, a scripted gait or ``goto`` (picklable, so worker
 processes rebuild it); :func:`episode_seed` is the reset seed of episode ``i`` of an
 evaluation seeded ``S``, the same for every design and every number of workers (common
 random numbers). The evaluation (:mod:`tumblebot.sim.evaluation.evaluate`) and the worker pool
@@ -23,7 +23,7 @@ from tumblebot.sim.world.tasks import get_task
 
 
 @dataclass(frozen=True)
-class Controller:
+class Driver:
     """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
     (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
     controller of :mod:`tumblebot.sim.control.goto`). Picklable, so workers can rebuild it."""
@@ -34,7 +34,7 @@ class Controller:
     allow_servo_mismatch: bool = False
 
     @classmethod
-    def of_gait(cls, name: str) -> Controller:
+    def of_gait(cls, name: str) -> Driver:
         """``--gait NAME``: a scripted gait, or ``goto``."""
         return cls("goto", "goto") if name == "goto" else cls("gait", name)
 
