@@ -50,17 +50,6 @@ FORMAT = "tumblebot-goto-choice/1"
 SEEDING = "episode_seed"
 
 
-def sweep_designs(count: int, seed: int) -> list[Design]:
-    """``count`` designs drawn uniformly over the bounds, keeping those that can tumble."""
-    rng = np.random.default_rng(seed)
-    out: list[Design] = []
-    while len(out) < count:
-        design = Design.sample(rng)
-        if design.can_tumble:
-            out.append(design)
-    return out
-
-
 def _sweep_env(physics: PhysicsProfile) -> Any:
     """A worker's state: one nav-flat environment under ``physics``, every design its own."""
     from tumblebot.sim.world.env import TumblerEnv

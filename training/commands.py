@@ -385,8 +385,8 @@ def _choice(args: argparse.Namespace) -> int:
     teacher's rule fitted to it (:mod:`tumblebot.training.choice`)."""
     import numpy as np
 
-    from tumblebot.sim.world.design import Design
-    from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep, sweep_designs
+    from tumblebot.sim.world.design import Design, tumbling_designs
+    from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep
     from tumblebot.training.config import TrainingError
 
     if args.choice_command == "fit":
@@ -398,7 +398,7 @@ def _choice(args: argparse.Namespace) -> int:
     check_writable(args.out, "--out")
     physics = profile_from_args(args)
     done = read_sweep(args.out) if args.out.exists() else []
-    designs = sweep_designs(args.designs, args.seed)
+    designs = tumbling_designs(args.designs, args.seed)
     for k, record in enumerate(done):  # continue only the same sweep
         if record.get("seeding") != SEEDING:
             raise TrainingError(f"{args.out} was swept by an earlier tumblebot, which seeded each design's "

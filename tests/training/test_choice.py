@@ -13,9 +13,9 @@ from tumblebot.cli import main
 from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.control.goto import GotoConfig
 from tumblebot.sim.control.policy import DUAL_GOTO, RESIDUAL_GOTO
-from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.design import Design, tumbling_designs
 from tumblebot.sim.world.physics import THESIS
-from tumblebot.training.choice import SEEDING, GotoChoice, reach, read_sweep, sweep, sweep_designs
+from tumblebot.training.choice import SEEDING, GotoChoice, reach, read_sweep, sweep
 from tumblebot.training.config import TrainingError
 from tumblebot.training.imitation import choice_teacher
 
@@ -25,13 +25,13 @@ def _records(noise: float = 0.0, seed: int = 0) -> list[dict[str, object]]:
     rng = np.random.default_rng(seed)
     return [{"design": list(d.as_tuple()),
              "difference": (0.03 if d.l / d.pivot_radius > 1.4 else -0.03) + noise * float(rng.normal())}
-            for d in sweep_designs(200, seed=seed)]
+            for d in tumbling_designs(200, seed=seed)]
 
 
 def test_that_the_sweep_draws_only_designs_that_can_tumble() -> None:
-    designs = sweep_designs(50, seed=4)
+    designs = tumbling_designs(50, seed=4)
     assert len(designs) == 50 and all(d.can_tumble and d.in_bounds() for d in designs)
-    assert designs == sweep_designs(50, seed=4)
+    assert designs == tumbling_designs(50, seed=4)
 
 
 def test_that_the_choice_recovers_where_the_second_setting_is_ahead_through_noise() -> None:
@@ -40,14 +40,14 @@ def test_that_the_choice_recovers_where_the_second_setting_is_ahead_through_nois
         record["se"] = 0.03
     choice = GotoChoice.fit(records)
     assert 1.3 < choice.threshold < 1.55  # the true change-over is 1.4; the rule leans high
-    held_out = sweep_designs(300, seed=9)
+    held_out = tumbling_designs(300, seed=9)
     truth = np.array([reach(d.as_tuple())[0] > 1.4 for d in held_out])
     predicted = np.array([choice.prefers_dual(d.as_tuple()) for d in held_out])
     assert (predicted == truth).mean() > 0.85
 
 
 def test_that_the_one_standard_error_rule_takes_the_highest_threshold_within_noise_of_the_best() -> None:
-    designs = sweep_designs(400, seed=5)
+    designs = tumbling_designs(400, seed=5)
     records = [{"design": list(d.as_tuple()), "se": 0.001,
                 "difference": 0.03 if reach(d.as_tuple())[0] > 1.5 else (0.0 if reach(d.as_tuple())[0] > 1.2
                                                                          else -0.05)}
@@ -110,7 +110,7 @@ def test_that_imitate_refuses_a_dual_student_without_a_choice_before_writing(tmp
 def test_that_a_sweep_file_of_another_sweep_is_not_continued(tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "sweep.jsonl"
-    first = sweep_designs(3, seed=3)[0]
+    first = tumbling_designs(3, seed=3)[0]
     line = {"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3, "seeding": SEEDING,
             "physics": THESIS.digest(), "difference": 0.0, "se": 0.01}
     for other, message in (({"seed": 4}, "holds another sweep"),

@@ -195,9 +195,10 @@ def test_that_the_dual_input_holds_the_actions_of_both_gotos_at_every_step(drive
 
 def _choice_file(folder: Path) -> Path:
     """A goto choice from a made-up sweep: the second setting ahead where the legs are long."""
-    from tumblebot.training.choice import GotoChoice, sweep_designs
+    from tumblebot.sim.world.design import tumbling_designs
+    from tumblebot.training.choice import GotoChoice
 
-    designs = sweep_designs(40, seed=1)
+    designs = tumbling_designs(40, seed=1)
     records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03}
                for d in designs]
     path = folder / "choice.json"

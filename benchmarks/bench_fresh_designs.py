@@ -1,0 +1,102 @@
+"""The bundled navigation policy against every hand-written controller, on designs drawn
+afresh: an evaluation that cannot be tuned to.
+
+Run: ``.venv/bin/python benchmarks/bench_fresh_designs.py [--task nav-flat] [--designs 24]
+[--design-seed 7919] [--episodes 48] [--seed 1] [--workers 2] [--hand-written goto,…] [--json FILE]``
+
+``--designs`` designs are drawn uniformly from the bounds with ``--design-seed`` (any seed
+works: the model cards' grid and training never see it), keeping those whose legs can lift
+the body. On each, the policy, ``goto`` and every fixed scripted gait drive the same
+``--episodes`` episodes (common random numbers, ``--seed``). Per design it prints each
+controller's mean final R, the policy's paired difference to the strongest hand-written
+controller on that design, and the paired t-test's p-value; then the bar the navigation
+cards hold the policy to: no more than 0.02 behind the strongest hand-written controller
+on every design where that controller reaches 0.5, and ahead of it on average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tumblebot.sim.control.drivers import Driver
+from tumblebot.sim.control.gaits import GAITS
+from tumblebot.sim.control.goto import NAVIGATION_TASKS
+from tumblebot.sim.evaluation.runner import EpisodeRunner
+from tumblebot.sim.optimize import bundled_policies
+from tumblebot.sim.report import paired_p
+from tumblebot.sim.world.design import tumbling_designs
+
+BEHIND = 0.02  #: how far the policy may trail the strongest hand-written controller on a design
+REACHES = 0.5  #: ... on the designs where that controller reaches this mean final R
+HAND_WRITTEN = ["goto"] + [g for g in GAITS if g not in ("random", "excite")]  # excite identifies
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
+    ap.add_argument("--designs", type=int, default=24, help="fresh designs (24)")
+    ap.add_argument("--design-seed", type=int, default=7919, help="seed the designs are drawn with (7919)")
+    ap.add_argument("--episodes", type=int, default=48, help="episodes per design and controller (48)")
+    ap.add_argument("--seed", type=int, default=1, help="episode seed (1)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--policy", type=Path, help="ONNX policy (default: the task's bundled policy)")
+    ap.add_argument("--hand-written", default=",".join(HAND_WRITTEN),
+                    help=f"the hand-written controllers to compare with (default all: {','.join(HAND_WRITTEN)})")
+    ap.add_argument("--json", type=Path, help="also write the per-design results here")
+    args = ap.parse_args()
+    if args.designs < 1 or args.episodes < 2 or args.workers < 1:
+        ap.error("--designs and --workers must be at least 1, --episodes at least 2")
+    hand = [n for n in args.hand_written.split(",") if n]
+    if not hand or any(n not in HAND_WRITTEN for n in hand):
+        ap.error(f"--hand-written takes a comma-separated list of {', '.join(HAND_WRITTEN)}")
+    policy = args.policy or bundled_policies([args.task])[args.task]
+    print(f"bench_fresh_designs {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
+          f"{platform.machine()}): {args.task}, policy {policy.name}, {args.designs} designs drawn with seed "
+          f"{args.design_seed}, {args.episodes} paired episodes each (seed {args.seed})", flush=True)
+    drivers = {"policy": Driver("onnx", str(policy)), **{name: Driver.of_gait(name) for name in hand}}
+    rows: list[dict[str, Any]] = []
+    print(f"{'design (x, y, z, l)':<30} {'l/r':>4} " + " ".join(f"{n:>8}" for n in drivers)
+          + f" {'best hand':>10} {'policy-best':>11} {'p':>7}")
+    runners = {name: EpisodeRunner({args.task: d}, workers=args.workers) for name, d in drivers.items()}
+    try:
+        for design in tumbling_designs(args.designs, args.design_seed):
+            R = {name: runner.run(design, [args.task], 0, args.episodes, args.seed)[args.task]
+                 for name, runner in runners.items()}
+            best = max(hand, key=lambda n: float(R[n].mean()))
+            diff = float(R["policy"].mean() - R[best].mean())
+            p = paired_p(R["policy"], R[best])
+            fails = bool(R[best].mean() >= REACHES and diff < -BEHIND)
+            rows.append({"design": design.as_dict(), "l_over_r": design.l / design.pivot_radius,
+                         "mean_R": {n: float(v.mean()) for n, v in R.items()}, "best_hand_written": best,
+                         "policy_minus_best": diff, "p": p, "fails_bar": fails})
+            text = "(" + ", ".join(f"{v:.3f}" for v in design.as_tuple()) + ")"
+            print(f"{text:<30} {design.l / design.pivot_radius:4.2f} "
+                  + " ".join(f"{float(R[n].mean()):8.3f}" for n in drivers)
+                  + f" {best:>10} {diff:+11.3f} {p if p is not None else float('nan'):7.2g}"
+                  + ("  FAILS" if fails else ""), flush=True)
+    finally:
+        for r in runners.values():
+            r.close()
+    diffs = np.array([r["policy_minus_best"] for r in rows])
+    failed = [r for r in rows if r["fails_bar"]]
+    print(f"policy − strongest hand-written controller: mean {diffs.mean():+.3f}, worst {diffs.min():+.3f}; "
+          f"policy − goto: mean {np.mean([r['mean_R']['policy'] - r['mean_R']['goto'] for r in rows]):+.3f}")
+    verdict = "met" if not failed and diffs.mean() > 0 else "NOT met"
+    print(f"bar (no more than {BEHIND} behind wherever the best reaches {REACHES}, ahead on average): {verdict}"
+          + (f" ({len(failed)} designs behind)" if failed else ""))
+    if args.json is not None:
+        args.json.write_text(json.dumps({"task": args.task, "policy": policy.name, "design_seed": args.design_seed,
+                                         "seed": args.seed, "episodes": args.episodes, "rows": rows}, indent=1))
+    return 0 if verdict == "met" else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
