@@ -381,9 +381,9 @@ def _turn_each_servo(bench: Bench) -> tuple[dict[str, list[str]], dict[str, list
     """Each servo alone, forward then reverse: per servo the two verdicts and body rolls.
 
     One leg turning alone can, now and then, tip the body back over the other leg (in
-    simulation 2 of 1 800 turns of the ξ = 3 robot rolled it backward). A servo wired or trimmed the
-    wrong way round is reversed both ways, so when the two ways disagree (one ``ok``, one
-    ``reversed``) both are watched once more, and the second pair is the verdict."""
+    simulation 2 of 1 800 turns of the ξ = 3 robot rolled it backward). A servo wired or
+    trimmed the wrong way round is reversed both ways, so when the two ways disagree (one
+    ``ok``, one ``reversed``) both are watched once more, and the second pair is the verdict."""
     verdicts: dict[str, list[str]] = {}
     rolls: dict[str, list[float]] = {}
     for i, servo in enumerate(SERVOS):

@@ -196,7 +196,7 @@ def _twin_run(args: argparse.Namespace) -> int:
     from tumblebot.sim.world.design import Design
 
     servo = _servo_of(args)
-    from tumblebot.sim.evaluation.evaluate import Driver
+    from tumblebot.sim.control.drivers import Driver
 
     if args.policy != "excite":
         Driver("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
@@ -613,8 +613,7 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     w.add_argument("--seed", type=int, default=0)
     w.add_argument("--servo-neutral", type=_neutral_pair, default=(float(NEUTRAL_US),) * 2, metavar="RIGHT,LEFT",
                    help=f"the world's servos' own neutral pulses, µs (default {NEUTRAL_US},{NEUTRAL_US}): one the "
-                        "firmware's trim "
-                        "does not match creeps")
+                        "firmware's trim does not match creeps")
     w.add_argument("--world-physics", metavar="PROFILE", help="the world's physics profile (name or JSON file)")
     w.add_argument("--pose-key", type=Path, metavar="FILE", help="sign the pose stream with this key file")
     w.add_argument("--reverse-servo", action="append", choices=("right", "left"), default=[],
