@@ -127,7 +127,6 @@ class Design:
         return f"Design(x={self.x:.3f}, y={self.y:.3f}, z={self.z:.3f}, l={self.l:.3f})"
 
 
-
 def tumbling_designs(count: int, seed: int) -> list[Design]:
     """``count`` designs drawn uniformly from the bounds with ``seed``, keeping those whose
     legs can lift the body (:attr:`Design.can_tumble`), in the order drawn."""
@@ -138,6 +137,7 @@ def tumbling_designs(count: int, seed: int) -> list[Design]:
         if design.can_tumble:
             out.append(design)
     return out
+
 
 #: The thesis's robots (Table 3.1), keyed by the ξ they were optimised for.
 THESIS_ROBOTS: dict[str, Design] = {
