@@ -6,12 +6,13 @@ Run: ``.venv/bin/python benchmarks/bench_fresh_designs.py [--task nav-flat] [--d
 
 ``--designs`` designs are drawn uniformly from the bounds with ``--design-seed`` (any seed
 works: the model cards' grid and training never see it), keeping those whose legs can lift
-the body. On each, the policy, ``goto`` and every fixed scripted gait drive the same
-``--episodes`` episodes (common random numbers, ``--seed``). Per design it prints each
-controller's mean final R, the policy's paired difference to the strongest hand-written
-controller on that design, and the paired t-test's p-value; then the bar the navigation
-cards hold the policy to: no more than 0.02 behind the strongest hand-written controller
-on every design where that controller reaches 0.5, and ahead of it on average.
+the body. On each, the policy, the hand-written navigation controllers (``goto`` and
+``plan``) and every fixed scripted gait drive the same ``--episodes`` episodes (common
+random numbers, ``--seed``). Per design it prints each controller's mean final R, the
+policy's paired difference to the strongest hand-written controller on that design, and
+the paired t-test's p-value; then the bar the navigation cards hold the policy to: no
+more than 0.02 behind the strongest hand-written controller on every design where that
+controller reaches 0.5, and ahead of it on average.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 
 from tumblebot.sim.control.drivers import Driver
 from tumblebot.sim.control.gaits import GAITS
-from tumblebot.sim.control.goto import NAVIGATION_TASKS
+from tumblebot.sim.control.goto import NAVIGATION_TASKS, NAVIGATORS
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import bundled_policies
 from tumblebot.sim.report import paired_p
@@ -36,7 +37,7 @@ from tumblebot.sim.world.design import tumbling_designs
 
 BEHIND = 0.02  #: how far the policy may trail the strongest hand-written controller on a design
 REACHES = 0.5  #: ... on the designs where that controller reaches this mean final R
-HAND_WRITTEN = ["goto"] + [g for g in GAITS if g not in ("random", "excite")]  # excite identifies
+HAND_WRITTEN = [*NAVIGATORS] + [g for g in GAITS if g not in ("random", "excite")]  # excite identifies
 
 
 def main() -> int:

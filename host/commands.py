@@ -56,17 +56,18 @@ def _policy_path(name: str) -> Path:
 
 
 def _trial_policy(args: argparse.Namespace, design: Any, task: str) -> tuple[Any, Path | str]:
-    """The controller ``trial run`` drives with (the bundled policy, an ONNX file or goto) and what the plan records."""
+    """The controller ``trial run`` drives with (the bundled policy, an ONNX file, goto or
+    plan) and what the plan records."""
     if args.gait is not None:
         if args.policy is not None:
             raise TumblebotError("give --policy or --gait, not both")
-        if args.gait != "goto":
+        from tumblebot.sim.control.goto import NAVIGATORS, GotoPolicy
+
+        if args.gait not in NAVIGATORS:
             from tumblebot.sim.control.gaits import GaitPolicy
 
             return GaitPolicy(args.gait, args.seed), args.gait  # an unknown gait is one error line
-        from tumblebot.sim.control.goto import GotoPolicy
-
-        return GotoPolicy(args.steps), "goto"
+        return GotoPolicy(args.steps, args.gait), args.gait
     from tumblebot.sim.control.policy import OnnxPolicy
 
     policy_path = _policy_path(args.policy or "nav-flat")
@@ -527,9 +528,9 @@ def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
     r.add_argument("--design", required=True, help="the robot's design x,y,z,l (m), for its e(w) and the records")
     r.add_argument("--policy", default=None, help="nav-flat (the bundled policy, the default) or an ONNX file")
-    r.add_argument("--gait", default=None, metavar="goto|GAIT",
-                   help="drive the trials with goto, the hand-written closed-loop controller, or with a scripted "
-                        "gait (excite: the identification run of tumblebot calibrate), instead of a policy")
+    r.add_argument("--gait", default=None, metavar="goto|plan|GAIT",
+                   help="drive the trials with goto or plan, the hand-written closed-loop controllers, or with a "
+                        "scripted gait (excite: the identification run of tumblebot calibrate), instead of a policy")
     r.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="lab-frame goal X,Y (default 0,0)")
     r.add_argument("--heading", type=float, default=0.0, help="lab-frame heading (rad) of the task frame's +x")
     r.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")

@@ -280,8 +280,9 @@ def _wait_for_agent(controller: TrialRunner, timeout: float, out: Callable[[str]
 
 def make_plan(setpoint: tuple[float, float], heading: float, radius: float, points: int, per_point: int, task: str,
               policy: Path | str, design: Design, seed: int, config: ControllerConfig) -> TrialPlan:
-    """``policy`` is an ONNX file, ``"goto"`` (the hand-written controller) or a gait's
-    name (``"excite"``, the identification run); the last two have no file."""
+    """``policy`` is an ONNX file, a hand-written navigation controller (``"goto"``,
+    ``"plan"``) or a gait's name (``"excite"``, the identification run); the last two have
+    no file."""
     if not (math.isfinite(radius) and radius > 0):
         raise TrialError(f"--radius {radius} must be a positive number of metres")
     if points < 1 or per_point < 1:
@@ -289,9 +290,10 @@ def make_plan(setpoint: tuple[float, float], heading: float, radius: float, poin
     if not all(math.isfinite(v) for v in (*setpoint, heading)):
         raise TrialError("the setpoint and heading must be finite numbers")
     from tumblebot.sim.control.gaits import GAITS
+    from tumblebot.sim.control.goto import NAVIGATORS
     from tumblebot.sim.control.policy import sha256_of
 
-    digest = "" if str(policy) == "goto" or str(policy) in GAITS else sha256_of(Path(policy))
+    digest = "" if str(policy) in NAVIGATORS or str(policy) in GAITS else sha256_of(Path(policy))
     return TrialPlan(setpoint, heading, radius, points, per_point, task, str(policy), digest,
                      design.as_tuple(), seed, asdict(config))
 

@@ -429,6 +429,7 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: Physics
     the final errors grouped by trial, in the index's order.
     """
     from tumblebot.host.trial_sets import TrialPlan, load_index
+    from tumblebot.sim.control.goto import NAVIGATORS
     from tumblebot.sim.evaluation.rollout import make_actor, run_episode
     from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.frames import to_task_frame, yaw_quaternion
@@ -436,8 +437,8 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: Physics
 
     plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
     index = load_index(folder)
-    actor = make_actor("goto", "goto", plan.task) if plan.policy == "goto" else make_actor("onnx", plan.policy,
-                                                                                           plan.task)
+    kind = "goto" if plan.policy in NAVIGATORS else "onnx"
+    actor = make_actor(kind, plan.policy, plan.task)
     physics = physics or twin_world_physics(folder)
     if physics is not None:
         env = TumblerEnv(task=plan.task, design=Design(*plan.design),

@@ -50,6 +50,7 @@ def _optimize_plan(args: argparse.Namespace) -> OptimizePlan:
         Recipe,
         StudyConfig,
         format_xi,
+        parse_policy_files,
         parse_tasks,
         parse_xi,
         parse_xi_list,
@@ -78,7 +79,8 @@ def _optimize_plan(args: argparse.Namespace) -> OptimizePlan:
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
     controller = args.gait or ("thesis-policy" if args.thesis_policies else "policy")
-    drivers = study_drivers(controller, objective.tasks, args.allow_servo_mismatch, servo)
+    drivers = study_drivers(controller, objective.tasks, args.allow_servo_mismatch, servo,
+                            parse_policy_files(args.policy, objective.tasks))
     policies = {t: Path(c.name) for t, c in drivers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
                             controller=controller, servo=servo)
@@ -206,9 +208,14 @@ def _add_optimize_command(sub: Subcommands) -> None:
     p.add_argument("--variant", choices=("thesis", "monotone"), default="thesis",
                    help="wrapper for R < 0: the thesis's R/(e+1)^xi or the monotone R*(e+1)^xi (default thesis)")
     p.add_argument("--json", type=Path, help="also write the study summary as JSON to this file")
-    p.add_argument("--gait", default=None, metavar="goto",
-                   help="drive the episodes with goto, the hand-written closed-loop navigation controller (navigation "
-                        "tasks), or a scripted gait, instead of each task's bundled policy; recorded in the study")
+    p.add_argument("--gait", default=None, metavar="goto|plan",
+                   help="drive the episodes with goto or plan, the hand-written closed-loop navigation controllers "
+                        "(navigation tasks), or a scripted gait, instead of each task's bundled policy; recorded in "
+                        "the study")
+    p.add_argument("--policy", action="append", metavar="[TASK=]FILE",
+                   help="drive TASK's episodes with this ONNX policy instead of the bundled one (repeat for several "
+                        "tasks; a bare FILE needs a single task). The study records each policy's SHA-256 and "
+                        "refuses to resume with another file")
     p.add_argument("--thesis-policies", action="store_true",
                    help="drive the episodes with the bundled policies that see only the thesis's 9-number "
                         "observation (policies/TASK-thesis.onnx where the best one also takes the design), as the "

@@ -34,7 +34,7 @@ def _report(args: argparse.Namespace) -> int:
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
                         controller=args.gait or ("thesis-policy" if args.thesis_policies else None), servo=servo,
-                        allow_servo_mismatch=args.allow_servo_mismatch, xis=xis)
+                        allow_servo_mismatch=args.allow_servo_mismatch, xis=xis, policies=args.policy)
     print(f"wrote {path}")
     return 0
 
@@ -59,9 +59,13 @@ def _add_report_command(sub: Subcommands) -> None:
     p.add_argument("--workers", type=int, default=1, help="processes running episodes (default 1)")
     p.add_argument("--seed", type=seed_type, default=1, help="seed of the re-evaluation episodes, which should differ "
                                                        "from the studies' (default 1)")
-    p.add_argument("--gait", default=None, metavar="goto",
-                   help="re-evaluate every design with goto (or a gait) instead of the controller the studies used "
-                        "(default: theirs, which must then agree)")
+    p.add_argument("--gait", default=None, metavar="goto|plan",
+                   help="re-evaluate every design with goto or plan (or a gait) instead of the controller the studies "
+                        "used (default: theirs, which must then agree)")
+    p.add_argument("--policy", action="append", metavar="[TASK=]FILE",
+                   help="re-evaluate TASK with this ONNX policy instead of the bundled one: the file a study was run "
+                        "with (a study records each policy's SHA-256, and the report refuses a policy the studies "
+                        "did not use); repeat for several tasks")
     p.add_argument("--thesis-policies", action="store_true",
                    help="re-evaluate with the bundled thesis-observation policies (see optimize --thesis-policies)")
     add_physics_argument(p, "re-evaluate under this world (default: the studies', which must agree)")

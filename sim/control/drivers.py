@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from tumblebot.sim.control.gaits import get_gait
-from tumblebot.sim.control.goto import check_navigation_task
+from tumblebot.sim.control.goto import NAVIGATORS, check_navigation_task, navigator
 from tumblebot.sim.control.policy import OnnxPolicy, PolicyError
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -25,8 +25,9 @@ from tumblebot.sim.world.tasks import get_task
 @dataclass(frozen=True)
 class Driver:
     """What drives the robot: ``kind`` is ``"onnx"`` (``name`` = policy path), ``"gait"``
-    (``name`` = gait name, ``random`` included) or ``"goto"`` (the closed-loop navigation
-    controller of :mod:`tumblebot.sim.control.goto`). Picklable, so workers can rebuild it."""
+    (``name`` = gait name, ``random`` included) or ``"goto"`` (``name`` = a hand-written
+    navigation controller of :data:`~tumblebot.sim.control.goto.NAVIGATORS`, ``goto`` or
+    ``plan``). Picklable, so workers can rebuild it."""
 
     kind: str
     name: str
@@ -35,13 +36,13 @@ class Driver:
 
     @classmethod
     def of_gait(cls, name: str) -> Driver:
-        """``--gait NAME``: a scripted gait, or ``goto``."""
-        return cls("goto", "goto") if name == "goto" else cls("gait", name)
+        """``--gait NAME``: a scripted gait, or a navigation controller (``goto``, ``plan``)."""
+        return cls("goto", name) if name in NAVIGATORS else cls("gait", name)
 
     def label(self) -> str:
         if self.kind == "onnx":
             return Path(self.name).name
-        return "goto" if self.kind == "goto" else f"gait:{self.name}"
+        return self.name if self.kind == "goto" else f"gait:{self.name}"
 
     def check(self, task: str, servo: PhysicsProfile | None = None) -> None:
         """Fail fast, in this process, with one clear error. A policy is refused under a
@@ -56,6 +57,7 @@ class Driver:
                                   "--physics, --motor-model/--stall-torque), or pass --allow-servo-mismatch to use "
                                   "it anyway")
         elif self.kind == "goto":
+            navigator(self.name)
             check_navigation_task(task)
         elif self.kind == "gait":
             get_gait(self.name)

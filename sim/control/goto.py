@@ -35,7 +35,7 @@ servo and 0.85 with a 10 N·m velocity-controlled one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -197,12 +197,33 @@ class GotoController:
         return action
 
 
+#: The hand-written navigation controllers by name (``--gait NAME``): ``goto`` with the
+#: settings every published ``goto`` number used, and ``plan``, the same planner with
+#: steadier estimates (the newest step weighs a quarter, not a half, so one odd step, a
+#: stall or a spin that shifted the body, misleads it less) and no spin in the last 3
+#: steps. ``plan`` is the stronger of the two on designs drawn afresh from the design
+#: space, most of all on mid-size bodies with medium to long legs; see the research notes
+#: on the policies.
+NAVIGATORS: dict[str, GotoConfig] = {
+    "goto": GotoConfig(),
+    "plan": GotoConfig(memory=0.25, spin_steps_left=3),
+}
+
+
+def navigator(name: str, episode_steps: int = 20) -> GotoController:
+    """A new hand-written navigation controller (:data:`NAVIGATORS`) for episodes of
+    ``episode_steps`` steps."""
+    if name not in NAVIGATORS:
+        raise SimError(f"unknown navigation controller {name!r} (use {' or '.join(NAVIGATORS)})")
+    return GotoController(replace(NAVIGATORS[name], episode_steps=episode_steps))
+
+
 class GotoPolicy:
     """:class:`GotoController` with a policy's interface, for the host: ``act(obs)`` counts
     the steps itself; :meth:`reset` at the start of every trial."""
 
-    def __init__(self, episode_steps: int = 20) -> None:
-        self.controller = GotoController(GotoConfig(episode_steps=episode_steps))
+    def __init__(self, episode_steps: int = 20, name: str = "goto") -> None:
+        self.controller = navigator(name, episode_steps)
         self.step = 0
 
     def reset(self) -> None:

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tumblebot.sim.control.goto import GotoController, check_navigation_task
+from tumblebot.sim.control.goto import GotoController, check_navigation_task, navigator
 from tumblebot.sim.errors import SimError
 
 Design4 = tuple[float, float, float, float]
@@ -77,14 +77,15 @@ class GotoActor:
 
 
 def make_actor(kind: str, name: str, task: str) -> Actor:
-    """``kind`` ``"onnx"`` (``name`` a policy file), ``"gait"`` (a gait name) or ``"goto"``."""
+    """``kind`` ``"onnx"`` (``name`` a policy file), ``"gait"`` (a gait name) or ``"goto"``
+    (``name`` a navigation controller: ``goto`` or ``plan``)."""
     if kind == "onnx":
         return _PolicyActor(Path(name), task)
     if kind == "gait":
         return _GaitActor(name)
     if kind == "goto":
         check_navigation_task(task)
-        return GotoActor()
+        return GotoActor(navigator(name))
     raise SimError(f"unknown controller kind {kind!r}")
 
 

@@ -174,18 +174,50 @@ def best_candidate(study: optuna.Study) -> Candidate | None:
 
 
 def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
-                  servo: PhysicsProfile | None = None) -> dict[str, Driver]:
+                  servo: PhysicsProfile | None = None, policies: dict[str, Path] | None = None
+                  ) -> dict[str, Driver]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
-    (the bundled ones with the thesis observation) or a gait name (``goto`` included), as
-    a task → :class:`Driver` map, each checked for its task and ``servo`` (here,
-    before a study is opened or written)."""
+    (the bundled ones with the thesis observation) or a gait name (``goto`` and ``plan``
+    included), as a task → :class:`Driver` map, each checked for its task and ``servo``
+    (here, before a study is opened or written). ``policies`` (``--policy TASK=FILE``)
+    replaces the bundled policy of its tasks: a study pinned to the files it used."""
+    policies = policies or {}
+    if policies and controller not in ("policy", "thesis-policy"):
+        raise OptimizeError(f"--policy drives episodes with an ONNX policy; the controller here is {controller!r}")
+    unknown = sorted(set(policies) - set(tasks))
+    if unknown:
+        raise OptimizeError(f"--policy for {', '.join(unknown)}: not a task of {', '.join(tasks) or 'the study'}")
     if controller in ("policy", "thesis-policy"):
-        out = {t: Driver("onnx", str(p), allow_servo_mismatch)
-               for t, p in bundled_policies(tasks, thesis=controller == "thesis-policy").items()}
+        rest = [t for t in tasks if t not in policies]
+        files = {**bundled_policies(rest, thesis=controller == "thesis-policy"), **policies}
+        out = {t: Driver("onnx", str(files[t]), allow_servo_mismatch) for t in tasks}
     else:
         out = {t: Driver.of_gait(controller) for t in tasks}
     for t, c in out.items():
         c.check(t, servo)
+    return out
+
+
+def parse_policy_files(values: list[str] | None, tasks: list[str] | None = None) -> dict[str, Path]:
+    """``--policy [TASK=]FILE`` (repeatable) as task → file. A bare FILE is the policy of
+    the only task in ``tasks``. Each file must exist; the policy itself is checked when
+    its driver is (:meth:`Driver.check`)."""
+    from tumblebot.sim.world.tasks import get_task
+
+    out: dict[str, Path] = {}
+    for value in values or []:
+        task, sep, name = value.rpartition("=")
+        if not sep:
+            if tasks is None or len(tasks) != 1:
+                raise OptimizeError(f"--policy {value}: say which task it drives, as TASK=FILE")
+            task = tasks[0]
+        task = get_task(task).name
+        if task in out:
+            raise OptimizeError(f"--policy gives two files for {task}")
+        path = Path(name)
+        if not path.is_file():
+            raise OptimizeError(f"--policy {value}: {path} is not a file")
+        out[task] = path
     return out
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tumblebot.sim.optimize import OptimizeError, open_storage
+from tumblebot.sim.optimize import OptimizeError, open_storage, parse_policy_files
 from tumblebot.sim.optimize.storage import redact_url
 from tumblebot.sim.report.markdown import render_markdown
 from tumblebot.sim.report.plots import draw_plots
@@ -28,6 +28,7 @@ from tumblebot.sim.report.tables import (
     StudyResult,
     build_table31,
     build_table32,
+    check_policies,
     common_controller,
     load_results,
     one_parameter_slices,
@@ -44,17 +45,8 @@ __all__ = ["THESIS_TABLE_31", "THESIS_TABLE_31_P", "THESIS_TABLE_32", "Evaluated
            "write_report"]
 
 
-def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
-                 workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
-                 controller: str | None = None, servo: PhysicsProfile | None = None,
-                 allow_servo_mismatch: bool = False, xis: tuple[float, ...] | None = None) -> Path:
-    """Evaluate and plot the studies; returns the path of ``report.md``.
-
-    Every design is re-evaluated with one controller and one servo, so the tables compare
-    like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``servo`` default
-    to what the studies used, which must then agree. A front study (``optimize --front``)
-    stands for one row per ``ξ`` of ``xis`` (default: the ξ it was made for); ``xis`` is
-    refused for other studies."""
+def _check_arguments(studies: list[str], episodes: int | None, slice_points: int, workers: int) -> None:
+    """``report``'s numbers, checked before any study is read."""
     if not studies:
         raise OptimizeError("give at least one --study")
     if len(set(studies)) != len(studies):
@@ -65,6 +57,22 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         raise OptimizeError(f"--slice-points {slice_points} must be at least 2")
     if workers < 1:
         raise OptimizeError(f"--workers {workers} must be at least 1")
+
+
+def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
+                 workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
+                 controller: str | None = None, servo: PhysicsProfile | None = None,
+                 allow_servo_mismatch: bool = False, xis: tuple[float, ...] | None = None,
+                 policies: list[str] | None = None) -> Path:
+    """Evaluate and plot the studies; returns the path of ``report.md``.
+
+    Every design is re-evaluated with one controller and one servo, so the tables compare
+    like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``servo`` default
+    to what the studies used, which must then agree. A front study (``optimize --front``)
+    stands for one row per ``ξ`` of ``xis`` (default: the ξ it was made for); ``xis`` is
+    refused for other studies. ``policies`` (``--policy [TASK=]FILE``) replaces bundled
+    policies; whichever policy re-evaluates a task must be the one its studies recorded."""
+    _check_arguments(studies, episodes, slice_points, workers)
     storage = open_storage(storage_url, must_exist=True)
     results = [r for name in studies for r in load_results(storage, name, xis, strict=len(studies) == 1)]
     if xis is not None and not any(r.front_of is not None for r in results):
@@ -84,9 +92,12 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     given = servo
     controller, servo = common_controller(results, controller, servo)
     pairs, missing = rebuild_pairs(usable, servo) if given is not None else ([], "")
-    ev = Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo, allow_servo_mismatch)
+    files = parse_policy_files(policies, all_tasks)
+    ev = Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo, allow_servo_mismatch,
+                   files)
     rebuild: list[dict[str, object]] = []
     try:
+        check_policies(results, controller, ev.policy_hashes)
         for r in usable:
             r.best = ev(r.extra["best_design"], r.tasks)
         assert reference.best is not None
@@ -102,7 +113,7 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
             "seed": seed,
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
-            "controller": controller, "servo": servo.record(),
+            "controller": controller, "policies": ev.policy_hashes, "servo": servo.record(),
             "table31": table31, "table32": table32, "universal": universal, "slices": slices,
             "rebuild": rebuild, "rebuild_missing": missing}
     plots = draw_plots(results, reference, slices, out_dir)

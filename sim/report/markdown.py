@@ -34,8 +34,9 @@ def render_markdown(results: list[StudyResult], reference: StudyResult, task: st
         f"Every R below is a fresh evaluation: {E} episodes per design and task, seed {data['seed']}, the same "
         "episodes for every design (common random numbers). p-values are two-sided paired t-tests on "
         "per-episode final-state R; p < 0.05 in bold.",
-        f"Driver: {CONTROLLER_LABEL.get(data['controller'], data['controller'])}; "
-        f"servo: {data['servo']['motor_model']} model, stall torque {data['servo']['stall_torque']:.3g} N·m.", "",
+        f"Driver: {CONTROLLER_LABEL.get(data['controller'], data['controller'])}"
+        + "".join(f"; {task} policy SHA-256 `{digest[:12]}…`" for task, digest in data.get("policies", {}).items())
+        + f"; servo: {data['servo']['motor_model']} model, stall torque {data['servo']['stall_torque']:.3g} N·m.", "",
         "## Studies", "",
         "| study | objective | recipe | batch | feasible trials | episodes spent | optimum at trial |",
         "|---|---|---|---|---|---|---|",

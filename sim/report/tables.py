@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,8 @@ THESIS_TABLE_31_P: dict[str, float | None] = {"0": None, "1": 0.33, "3": 0.08, "
 PERTURBATION = 0.1  # m, as in the thesis
 CONTROLLER_LABEL = {"policy": "each task's bundled policy",
                     "thesis-policy": "each task's bundled policy with the thesis's 9-number observation",
-                    "goto": "goto (the hand-written navigation controller)"}
+                    "goto": "goto (the hand-written navigation controller)",
+                    "plan": "plan (goto with steadier estimates, the stronger hand-written navigation controller)"}
 
 
 @dataclass
@@ -104,12 +106,15 @@ class Evaluator:
 
     def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
                  controller: str = "policy", servo: PhysicsProfile | None = None,
-                 allow_servo_mismatch: bool = False) -> None:
+                 allow_servo_mismatch: bool = False, policies: dict[str, Path] | None = None) -> None:
+        from tumblebot.sim.control.policy import sha256_of
         from tumblebot.sim.evaluation.runner import EpisodeRunner
 
-        self.runner = (EpisodeRunner(study_drivers(controller, tasks, allow_servo_mismatch), workers=workers,
-                                     servo=servo)
-                       if tasks else None)
+        drivers = study_drivers(controller, tasks, allow_servo_mismatch, policies=policies)
+        self.policies = policies or {}
+        #: task → SHA-256 of the ONNX policy that re-evaluates it (none for goto or a gait)
+        self.policy_hashes = {t: sha256_of(Path(d.name)) for t, d in drivers.items() if d.kind == "onnx"}
+        self.runner = EpisodeRunner(drivers, workers=workers, servo=servo) if tasks else None
         self.episodes, self.seed = episodes, seed
         self.tasks, self.workers, self.controller = tasks, workers, controller
         self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
@@ -211,6 +216,20 @@ def load_results(storage: Any, name: str, xis: tuple[float, ...] | None = None,
             result.extra["best_design"] = best.design
         out.append(result)
     return out
+
+
+def check_policies(results: list[StudyResult], controller: str, hashes: dict[str, str]) -> None:
+    """Refuse to re-evaluate a study with a policy other than the one it recorded (when
+    the report uses the studies' own kind of controller): its optimum was found with that
+    file, and the report would quietly describe another. ``--policy TASK=FILE`` pins it."""
+    for r in results:
+        if r.config.controller != controller:
+            continue  # the report was asked for another controller (--gait, --thesis-policies)
+        for task, recorded in r.config.policies.items():
+            if task in hashes and hashes[task] != recorded:
+                raise OptimizeError(f"study {r.name!r} ran {task} with the policy of SHA-256 {recorded[:12]}…, not "
+                                    f"this one ({hashes[task][:12]}…): give the file it used with --policy "
+                                    f"{task}=FILE, or re-evaluate with another controller (--gait goto)")
 
 
 def common_controller(results: list[StudyResult], controller: str | None, servo: PhysicsProfile | None
@@ -375,7 +394,7 @@ def would_i_still_build_it(pairs: list[tuple[StudyResult, StudyResult]], ev: Eva
     from tumblebot.sim.world.physics import THESIS
 
     ev_thesis = Evaluator(list(ev.tasks), ev.episodes, ev.workers, ev.seed, 0, False, ev.controller, THESIS,
-                          allow_servo_mismatch)
+                          allow_servo_mismatch, ev.policies)
     try:
         return [_rebuild_row(thesis_study, mine, ev, ev_thesis, physics) for thesis_study, mine in pairs]
     finally:

@@ -322,3 +322,15 @@ def test_that_commands_the_firmware_does_not_run_abort_the_trial(unplugged_lab: 
     assert TrialRunner.link_fault(body, epoch=7) is None
     reboot = TrialRunner.link_fault({**body, "epoch": 8}, epoch=7)
     assert reboot is not None and reboot[0] == "firmware_reboot"
+
+
+def test_that_trial_run_drives_with_plan_and_records_its_name() -> None:
+    import argparse
+
+    from tumblebot.host.commands import _trial_policy
+    from tumblebot.sim.control.goto import GotoPolicy
+
+    args = argparse.Namespace(gait="plan", policy=None, steps=20, seed=0)
+    policy, recorded = _trial_policy(args, None, "nav-flat")  # goto and plan do not need the design
+    assert isinstance(policy, GotoPolicy) and recorded == "plan"
+    assert policy.controller.config.memory == 0.25 and policy.controller.config.spin_steps_left == 3

@@ -607,3 +607,59 @@ def test_that_the_printed_optimum_reproduces_its_e_regression_rounded_design_gav
     power = tb("power", *exact.split("tumblebot power", 1)[1].split(), "--json")
     assert power.returncode == 0, power.stderr
     assert f"e(w) = {json.loads(power.stdout)['e']:.3f} W/m" in printed_e
+
+
+# ------------------------------------------------------------------ pinned policies
+def _policy_copy(tmp_path: Path, name: str, as_name: str) -> Path:
+    """A copy of a bundled nav-flat policy (and its card) under another name."""
+    import shutil
+
+    from tumblebot.sim.control.policy import bundled_policy
+
+    folder = bundled_policy("nav-flat").parent
+    for suffix in (".onnx", ".json"):
+        shutil.copy(folder / f"{name}{suffix}", tmp_path / f"{as_name}{suffix}")
+    return tmp_path / f"{as_name}.onnx"
+
+
+def test_that_a_study_pinned_to_a_policy_file_resumes_and_reports_only_with_that_file(tmp_path: Path) -> None:
+    from tumblebot.sim.control.policy import sha256_of
+
+    old = _policy_copy(tmp_path, "nav-flat-thesis", "old-nav-flat")  # a nav-flat policy other than the bundled one
+    storage = f"sqlite:///{tmp_path / 'p.db'}"
+    base = ["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "2", "--batch", "2", "--storage", storage,
+            "--study", "p", "--quiet"]
+    run = tb(*base, "--policy", f"nav-flat={old}")
+    assert run.returncode == 0, run.stderr
+    assert load(tmp_path / "p.db", "p").user_attrs["tumblebot"]["policies"] == {"nav-flat": sha256_of(old)}
+    refused = tb(*base)  # the bundled policy is not the one the study ran with
+    assert refused.returncode == 2 and "different objective" in refused.stderr, refused.stderr
+    assert tb(*base, "--trials", "3", "--policy", str(old)).returncode == 0  # a bare FILE: the study's one task
+    report = ["report", "--storage", storage, "--study", "p", "--episodes", "2", "--slice-points", "2", "--quiet"]
+    stale = tb(*report, "-o", str(tmp_path / "stale"))
+    err = stale.stderr.strip().splitlines()
+    assert stale.returncode == 2 and len(err) == 1 and "--policy nav-flat=FILE" in err[0], stale.stderr
+    assert not (tmp_path / "stale" / "report.md").exists()
+    pinned = tb(*report, "-o", str(tmp_path / "pinned"), "--policy", f"nav-flat={old}")
+    assert pinned.returncode == 0, pinned.stderr
+    data = json.loads((tmp_path / "pinned" / "report.json").read_text())
+    assert data["policies"] == {"nav-flat": sha256_of(old)}
+    assert tb(*report, "-o", str(tmp_path / "goto"), "--gait", "goto").returncode == 0  # another controller: no pin
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--policy", "missing.onnx"], "is not a file"),
+    (["--policy", "incline=POLICY"], "not a task of nav-flat"),
+    (["--policy", "nav-flat=POLICY", "--policy", "nav-flat=POLICY"], "two files for nav-flat"),
+    (["--policy", "nav-flat=POLICY", "--gait", "goto"], "the controller here is 'goto'"),
+    (["--policy", "warp=POLICY"], "unknown task 'warp'"),
+])
+def test_that_a_bad_policy_argument_is_one_error_line_and_writes_nothing(tmp_path: Path, argv: list[str],
+                                                                          message: str) -> None:
+    policy = _policy_copy(tmp_path, "nav-flat", "mine")
+    argv = [a.replace("POLICY", str(policy)) for a in argv]
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "2", "--batch", "2", "--storage",
+             f"sqlite:///{tmp_path / 'x.db'}", "--quiet", *argv)
+    err = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(err) == 1 and message in err[0], run.stderr
+    assert not (tmp_path / "x.db").exists()
