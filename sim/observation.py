@@ -1,7 +1,7 @@
 """The policies' observation layouts, each declared once as named fields.
 
 The environment's observation is the thesis's 9 numbers (:data:`OBS_LAYOUT`). A policy
-takes one of five layouts (:data:`LAYOUTS`):
+takes one of six layouts (:data:`LAYOUTS`):
 
 * ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
 * ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
@@ -22,6 +22,10 @@ takes one of five layouts (:data:`LAYOUTS`):
   :data:`DUAL_GOTO` (:data:`DUAL_FIELDS`), which suit some bodies better and others worse;
   a policy with this input, which also knows the design, can follow whichever suits the
   body it drives (:mod:`tumblebot.training.choice`).
+* ``dual-plan``: the fields of ``dual``, computed by two ``goto`` with ``plan``'s steadier
+  estimates (:data:`PLAN_GOTO`, the first one's also giving the memory fields, and
+  :data:`PLAN_DUAL_GOTO`): the input of a student of ``plan``, the stronger hand-written
+  controller.
 
 Code that reads a part of an observation asks for it by name (:func:`field_index`,
 :func:`fields_slice`), never by a hand-counted offset. This module imports nothing of
@@ -52,6 +56,19 @@ RESIDUAL_GOTO: dict[str, Any] = {"turn_tolerance": 0.4, "stop_fraction": 0.5, "m
 #: The second ``goto`` a ``dual`` policy is shown: the settings that gain on the thesis's
 #: robots and on medium legs and lose on short legs (``reports/policy-headroom``), pinned.
 DUAL_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
+#: ``plan``'s settings (:data:`tumblebot.sim.control.goto.NAVIGATORS`), pinned for the
+#: ``dual-plan`` layout's first goto, and its second: ``plan``'s estimates with the turning
+#: of :data:`DUAL_GOTO`, which the thesis's robots prefer.
+PLAN_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "memory": 0.25, "spin_steps_left": 3}
+PLAN_DUAL_GOTO: dict[str, Any] = {**PLAN_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
+LAYOUTS["dual-plan"] = LAYOUTS["dual"]
+#: The layouts given goto's actions: the settings of each goto, in the order of their fields
+#: (the first one's running estimates are the memory fields).
+GOTO_SETTINGS: dict[str, tuple[dict[str, Any], ...]] = {"residual": (RESIDUAL_GOTO,),
+                                                        "dual": (RESIDUAL_GOTO, DUAL_GOTO),
+                                                        "dual-plan": (PLAN_GOTO, PLAN_DUAL_GOTO)}
+#: the layouts shown two gotos' actions, whose teacher chooses between them per body
+DUAL_LAYOUTS: tuple[str, ...] = tuple(name for name, gotos in GOTO_SETTINGS.items() if len(gotos) == 2)
 EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 

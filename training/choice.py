@@ -8,7 +8,11 @@ and costs up to 0.03 on bodies with short legs. A ``dual`` policy
 (:data:`tumblebot.sim.control.policy.LAYOUTS`) is shown the action of ``goto`` under both settings
 (:data:`~tumblebot.sim.observation.RESIDUAL_GOTO` and :data:`~tumblebot.sim.observation.DUAL_GOTO`)
 and the design; its teacher follows the second setting on the bodies where this module
-predicts it does better.
+predicts it does better. A ``dual-plan`` policy is the same with the two settings of
+``plan``, the stronger hand-written controller
+(:data:`~tumblebot.sim.observation.PLAN_GOTO` and
+:data:`~tumblebot.sim.observation.PLAN_DUAL_GOTO`): every function here takes the layout
+whose pair of settings it sweeps or fits (``dual`` by default).
 
 1. :func:`sweep` drives ``nav-flat`` episodes on designs drawn uniformly over those that
    can tumble, under both settings, paired on the same episodes (the same randomisation
@@ -19,7 +23,7 @@ predicts it does better.
    fitted to the sweep (the highest whose summed gain is within one standard error of the
    best), and the first elsewhere.
 
-    tumblebot choice sweep --designs 240 --episodes 48 --seed 3 \\
+    tumblebot choice sweep --designs 240 --episodes 48 --seed 3 [--layout dual-plan] \\
         --out training/checkpoints/goto-choice/sweep.jsonl
     tumblebot choice fit training/checkpoints/goto-choice/sweep.jsonl \\
         -o training/checkpoints/goto-choice/choice.json
@@ -39,7 +43,7 @@ from tumblebot.sim.control.drivers import episode_seed
 from tumblebot.sim.control.goto import GotoConfig, GotoController
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
-from tumblebot.sim.observation import DUAL_GOTO, RESIDUAL_GOTO
+from tumblebot.sim.observation import DUAL_LAYOUTS, GOTO_SETTINGS
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 from tumblebot.training.config import TrainingError
@@ -59,32 +63,42 @@ def _sweep_env(physics: PhysicsProfile) -> Any:
                       **physics.env_kwargs())
 
 
-def _episode(env: Any, job: tuple[tuple[float, ...], int, int]) -> tuple[float, float]:
-    """Final R of episode ``index`` of seed ``seed`` on nav-flat under goto's
-    ``RESIDUAL_GOTO`` and ``DUAL_GOTO`` settings: the same episode (:func:`episode_seed`,
-    as every evaluation seeds them), so the two are paired, and every design sees the same
-    starts."""
-    design, seed, index = job
+def check_layout(layout: str) -> str:
+    """``layout`` if its policies are shown two gotos (a choice is about them), else an error."""
+    if layout not in DUAL_LAYOUTS:
+        raise TrainingError(f"layout {layout!r} has no two goto settings to choose between "
+                            f"(use {' or '.join(DUAL_LAYOUTS)})")
+    return layout
+
+
+def _episode(env: Any, job: tuple[tuple[float, ...], int, int, str]) -> tuple[float, float]:
+    """Final R of episode ``index`` of seed ``seed`` on nav-flat under the two goto
+    settings of ``layout`` (``dual``: ``RESIDUAL_GOTO`` and ``DUAL_GOTO``): the same
+    episode (:func:`episode_seed`, as every evaluation seeds them), so the two are paired,
+    and every design sees the same starts."""
+    design, seed, index, layout = job
     options = {"design": Design.from_sequence(design)}
     first, second = (run_episode(env, GotoActor(GotoController(GotoConfig(**settings))), episode_seed(seed, index),
-                                 options=options).final_R for settings in (RESIDUAL_GOTO, DUAL_GOTO))
+                                 options=options).final_R for settings in GOTO_SETTINGS[layout])
     return first, second
 
 
 def sweep(designs: Sequence[Design], episodes: int, seed: int, workers: int, done: int = 0,
           should_stop: Callable[[], bool] = lambda: False,
-          physics: PhysicsProfile = THESIS) -> Iterator[dict[str, Any]]:
+          physics: PhysicsProfile = THESIS, layout: str = "dual") -> Iterator[dict[str, Any]]:
     """Each design's record from ``done`` on: its two mean final Rs and the paired
-    difference (second setting minus first) with its standard error, under ``physics``."""
+    difference (second setting minus first) with its standard error, under ``physics``,
+    for the two settings of ``layout``."""
+    check_layout(layout)
     with WorkerPool(_sweep_env, (physics,), workers) as pool:
         for index in range(done, len(designs)):
             if should_stop():
                 return
             design = designs[index].as_tuple()
-            R = np.array(pool.map(_episode, [(design, seed, e) for e in range(episodes)], chunksize=4))
+            R = np.array(pool.map(_episode, [(design, seed, e, layout) for e in range(episodes)], chunksize=4))
             diff = R[:, 1] - R[:, 0]
             yield {"index": index, "design": list(design), "episodes": episodes, "seed": seed,
-                   "seeding": SEEDING, "physics": physics.digest(),
+                   "seeding": SEEDING, "physics": physics.digest(), "layout": layout,
                    "goto": float(R[:, 0].mean()), "dual": float(R[:, 1].mean()),
                    "difference": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(episodes))}
 
@@ -126,11 +140,22 @@ class GotoChoice:
     designs: np.ndarray  #: (N, 4) swept designs, m
     differences: np.ndarray  #: (N,) mean paired difference of each (second − first)
     errors: np.ndarray  #: (N,) its standard error
+    layout: str = "dual"  #: the policy layout whose two goto settings it chooses between
+
+    @property
+    def settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The first and the second goto settings (:data:`~tumblebot.sim.observation.GOTO_SETTINGS`)."""
+        first, second = GOTO_SETTINGS[self.layout]
+        return first, second
 
     @classmethod
     def fit(cls, records: Sequence[dict[str, Any]]) -> GotoChoice:
         if len(records) < 5:
             raise TrainingError(f"a goto choice needs at least 5 swept designs, not {len(records)}")
+        layouts = {r.get("layout", "dual") for r in records}  # sweeps before dual-plan were of dual
+        if len(layouts) != 1:
+            raise TrainingError(f"the sweep mixes the goto settings of {', '.join(sorted(layouts))}")
+        layout = check_layout(layouts.pop())
         designs = np.array([r["design"] for r in records], dtype=float)
         differences = np.array([r["difference"] for r in records], dtype=float)
         errors = np.array([r.get("se", 0.0) for r in records], dtype=float)
@@ -146,7 +171,7 @@ class GotoChoice:
             lost = totals[best] - totals[k]
             if lost <= float(np.sqrt(variances[best:k].sum())):
                 chosen = k
-        return cls(float(candidates[chosen]), designs, differences, errors)
+        return cls(float(candidates[chosen]), designs, differences, errors, layout)
 
     def prefers_dual(self, design: Sequence[float] | np.ndarray) -> bool:
         return bool(reach(design)[0] > self.threshold)
@@ -158,7 +183,9 @@ class GotoChoice:
                 f"below {self.differences[~above].mean() if (~above).any() else float('nan'):+.4f}")
 
     def to_json(self) -> str:
-        return json.dumps({"format": FORMAT, "first": RESIDUAL_GOTO, "second": DUAL_GOTO, "rule": "l/r > threshold",
+        first, second = self.settings
+        return json.dumps({"format": FORMAT, "layout": self.layout, "first": first, "second": second,
+                           "rule": "l/r > threshold",
                            "threshold": self.threshold, "designs": self.designs.tolist(),
                            "differences": self.differences.tolist(), "errors": self.errors.tolist()}, indent=1) + "\n"
 
@@ -166,10 +193,12 @@ class GotoChoice:
     def load(cls, path: Path) -> GotoChoice:
         try:
             data = json.loads(Path(path).read_text())
-            if data.get("format") != FORMAT or data.get("first") != RESIDUAL_GOTO or data.get("second") != DUAL_GOTO:
+            layout = data.get("layout", "dual")  # files before dual-plan were of dual
+            if data.get("format") != FORMAT or layout not in DUAL_LAYOUTS \
+                    or [data.get("first"), data.get("second")] != list(GOTO_SETTINGS[layout]):
                 raise ValueError(f"not a {FORMAT} file for the pinned goto settings")
             choice = cls(float(data["threshold"]), np.array(data["designs"], dtype=float).reshape(-1, 4),
-                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float))
+                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float), layout)
         except (OSError, json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"goto choice {path}: {exc}") from None
         if not len(choice.designs) == len(choice.differences) == len(choice.errors) \

@@ -27,6 +27,7 @@ from tumblebot.cliargs import (
 )
 from tumblebot.defaults import OBSERVATION_LAYOUTS
 from tumblebot.errors import TumblebotError
+from tumblebot.sim.observation import DUAL_LAYOUTS
 from tumblebot.sim.world.physics import profile_from_args
 from tumblebot.sim.world.tasks import TASK_CHOICES
 
@@ -321,10 +322,11 @@ def _add_imitate_command(sub: Subcommands) -> None:
     p.add_argument("--observation", choices=OBSERVATION_LAYOUTS[1:], default="context",
                    help="student input: context (the thesis's 9 numbers, the design, the steps left, the previous "
                         "observation), memory (context plus goto's motion estimates), residual (memory plus the "
-                        "action goto would take) or dual (residual plus the action of goto with its second "
-                        "pinned settings; needs --choice; default context)")
+                        "action goto would take), dual (residual plus the action of goto with its second "
+                        "pinned settings; needs --choice) or dual-plan (dual's fields from two gotos with plan's "
+                        "estimates; needs a --choice swept for it); default context")
     p.add_argument("--choice", type=Path, default=None, metavar="CHOICE.json",
-                   help="with --observation dual: which goto settings suit which body (python -m "
+                   help="with --observation dual or dual-plan: which goto settings suit which body (python -m "
                         "tumblebot choice fit); the teacher follows the better one on each body")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=seed_type, default=0, help="seed (default 0)")
@@ -404,14 +406,16 @@ def _choice(args: argparse.Namespace) -> int:
             raise TrainingError(f"{args.out} was swept by an earlier tumblebot, which seeded each design's "
                                 "episodes its own way: start a new file")
         same = (k < len(designs) and record.get("seed") == args.seed and record.get("episodes") == args.episodes
-                and record.get("physics") == physics.digest() and np.allclose(record["design"], designs[k].as_tuple()))
+                and record.get("physics") == physics.digest() and record.get("layout", "dual") == args.layout
+                and np.allclose(record["design"], designs[k].as_tuple()))
         if not same:
             raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
                                 f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
-                                f"under the {physics.describe()})")
+                                f"--layout {args.layout} under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as out:
-        for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics):
+        for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics,
+                            layout=args.layout):
             out.write(json.dumps(record) + "\n")
             out.flush()
             print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
@@ -435,6 +439,9 @@ def _add_choice_command(sub: Subcommands) -> None:
                    help="designs and episodes (default 3; keep it apart from evaluation seeds)")
     s.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     s.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
+    s.add_argument("--layout", choices=DUAL_LAYOUTS, default="dual",
+                   help="whose two goto settings: dual (goto's defaults and the thesis robots' turning) or "
+                        "dual-plan (the same two with plan's steadier estimates); default dual")
     add_servo_arguments(s)
     f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
     f.add_argument("sweep", type=Path, help="the sweep's JSON-lines file")

@@ -46,7 +46,8 @@ class TrainConfig:
             ``"context"`` (those plus the design, the steps left and the previous
             observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
             ``"residual"`` (``memory`` plus goto's proposed action) or ``"dual"``
-            (``residual`` plus a second goto's, :data:`tumblebot.sim.observation.DUAL_GOTO`;
+            (``residual`` plus a second goto's, :data:`tumblebot.sim.observation.DUAL_GOTO`)
+            or ``"dual-plan"`` (the same fields from two gotos with ``plan``'s estimates;
             :data:`tumblebot.sim.control.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.world.env`); recorded in the model card, and a policy is not used

@@ -45,6 +45,10 @@ OBSERVATION_NOTES = {
              "tumblebot.sim.observation.DUAL_GOTO, also told the action actually taken every step): which of the "
              "two suits the body is learnt from the design; OnnxPolicy builds it from the thesis observation and the "
              "design given at reset"),
+    "dual-plan": ("the fields of the dual observation, computed by two gotos with plan's steadier estimates (the "
+                  "settings pinned in tumblebot.sim.observation.PLAN_GOTO and PLAN_DUAL_GOTO, the first one's "
+                  "estimates in the memory fields): which of the two suits the body is learnt from the design; "
+                  "OnnxPolicy builds it from the thesis observation and the design given at reset"),
 }
 
 

@@ -133,7 +133,7 @@ class DualFeatures(ResidualFeatures):
 _FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
     "thesis": (ObservationFeatures, FEATURES["thesis"]), "context": (ContextFeatures, FEATURES["context"]),
     "memory": (MemoryFeatures, FEATURES["memory"]), "residual": (ResidualFeatures, FEATURES["residual"]),
-    "dual": (DualFeatures, FEATURES["dual"]),
+    "dual": (DualFeatures, FEATURES["dual"]), "dual-plan": (DualFeatures, FEATURES["dual-plan"]),
 }
 
 

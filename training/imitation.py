@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.control.goto import GotoConfig, GotoController
-from tumblebot.sim.observation import EPISODE_STEPS, fields_slice
+from tumblebot.sim.observation import DUAL_LAYOUTS, EPISODE_STEPS, fields_slice
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -86,11 +86,12 @@ def goto_teacher(episode_steps: int = EPISODE_STEPS) -> Teacher:
 
 def choice_teacher(choice: Any, episode_steps: int = EPISODE_STEPS) -> Teacher:
     """goto with the settings a :class:`~tumblebot.training.choice.GotoChoice` predicts
-    better for the body (``DUAL_GOTO`` or ``RESIDUAL_GOTO``)."""
-    from tumblebot.sim.control.policy import DUAL_GOTO, RESIDUAL_GOTO
+    better for the body (of its layout's two: ``RESIDUAL_GOTO`` or ``DUAL_GOTO`` for
+    ``dual``, ``PLAN_GOTO`` or ``PLAN_DUAL_GOTO`` for ``dual-plan``)."""
+    first, second = choice.settings
 
     def settings(design: np.ndarray) -> GotoConfig:
-        chosen = DUAL_GOTO if choice.prefers_dual(design) else RESIDUAL_GOTO
+        chosen = second if choice.prefers_dual(design) else first
         return GotoConfig(episode_steps=episode_steps, **chosen)
 
     return settings
@@ -282,8 +283,8 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     """Check the run can start, then write its config (rewritten with the steps taken at
     the end) and ``imitation.json``: the DAgger settings and the teacher."""
     if config.observation == "thesis":
-        raise TrainingError("imitation needs the context, memory, residual or dual observation (goto uses memory "
-                            "the thesis's 9 numbers lack)")
+        raise TrainingError("imitation needs the context, memory, residual, dual or dual-plan observation (goto "
+                            "uses memory the thesis's 9 numbers lack)")
     from tumblebot.sim.control.goto import check_navigation_task
 
     check_navigation_task(config.task)
@@ -329,14 +330,18 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     needs ``choice``, a :class:`~tumblebot.training.choice.GotoChoice` file: its teacher is
     goto with the settings that file predicts better for each body (copied into the run)."""
     teacher, record = goto_teacher(), None
-    if (config.observation == "dual") != (choice is not None):
-        raise TrainingError("a dual student needs --choice (which goto settings suit which body), and only "
-                            "a dual student takes it")
+    dual = config.observation in DUAL_LAYOUTS
+    if dual != (choice is not None):
+        raise TrainingError(f"a {' or '.join(DUAL_LAYOUTS)} student needs --choice (which goto settings suit which "
+                            "body), and only such a student takes it")
     if choice is not None:
         from tumblebot.sim.control.policy import sha256_of
         from tumblebot.training.choice import GotoChoice
 
         model_of_choice = GotoChoice.load(choice)  # checked before the run folder is written
+        if model_of_choice.layout != config.observation:
+            raise TrainingError(f"--choice {choice} was fitted for the {model_of_choice.layout} layout's gotos, not "
+                                f"{config.observation}'s (tumblebot choice sweep --layout {config.observation})")
         teacher = choice_teacher(model_of_choice)
         record = {"kind": "goto-choice", "choice": "choice.json", "choice_sha256": sha256_of(choice)}
     _new_run(config, imitation, run_dir, record)
@@ -434,9 +439,9 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
         raise TrainingError(f"--lookahead {horizon} must be 1–{EPISODE_STEPS} steps")
     if not (source / "dagger.npz").is_file():
         raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
-    if config.observation == "dual":
-        raise TrainingError(f"{source} is a dual run: refine's search continues with goto's defaults, not the "
-                            "setting its teacher chose for each body")
+    if config.observation in DUAL_LAYOUTS:
+        raise TrainingError(f"{source} is a {config.observation} run: refine's search continues with goto's "
+                            "defaults, not the setting its teacher chose for each body")
     config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps
     _new_run(config, imitation, run_dir, {"kind": "goto+search", "lookahead": horizon, "draws": draws,
                                           "future": "drawn anew" if draws else "the episode's own (clairvoyant)",

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from tumblebot.sim.observation import LAYOUTS, fields_slice
+from tumblebot.sim.observation import GOTO_SETTINGS, LAYOUTS, fields_slice
 
 FEATURE_NAMES: tuple[str, ...] = (
     "px", "py", "pz",
@@ -52,7 +52,7 @@ DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_
 #: layout → the features its network computes, in order
 FEATURES: dict[str, tuple[str, ...]] = {"thesis": FEATURE_NAMES, "context": CONTEXT_FEATURE_NAMES,
                                         "memory": MEMORY_FEATURE_NAMES, "residual": RESIDUAL_FEATURE_NAMES,
-                                        "dual": DUAL_FEATURE_NAMES}
+                                        "dual": DUAL_FEATURE_NAMES, "dual-plan": DUAL_FEATURE_NAMES}
 DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 #: Where each part of a design-conditioned input lies, asked of the layouts by name
@@ -95,10 +95,10 @@ def _row(layout: str, x: list[float]) -> list[float]:
         return out
     step_length, spin_positive, spin_negative = x[MEMORY]
     out += (step_length / DESIGN_SCALE, spin_positive, spin_negative)
-    proposals = x[PROPOSALS][:2 if layout == "residual" else 4] if layout in ("residual", "dual") else []
-    for leg in proposals:
+    gotos = len(GOTO_SETTINGS.get(layout, ()))
+    for leg in x[PROPOSALS][:2 * gotos]:
         out += (float(abs(leg - command) < 0.5) for command in range(3))
-    if layout == "dual":
+    if gotos == 2:
         _, y, z, length = x[DESIGN]
         out.append(length / (0.5 * max(math.sqrt(y * y + z * z), 1e-3)) - 1.0)
     return out

@@ -34,6 +34,7 @@ from tumblebot.sim.observation import (
     DUAL_FIELDS,
     DUAL_GOTO,
     EPISODE_STEPS,
+    GOTO_SETTINGS,
     LAYOUTS,
     MEMORY_FIELDS,
     OBS_LAYOUT,
@@ -107,10 +108,11 @@ class ObservationContext:
         self._goto2: Any = None
         if layout == "memory":
             self._motion = MotionMemory()
-        elif layout in ("residual", "dual"):
-            self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **RESIDUAL_GOTO))
-            if layout == "dual":
-                self._goto2 = GotoController(GotoConfig(episode_steps=episode_steps, **DUAL_GOTO))
+        elif layout in GOTO_SETTINGS:
+            first, *second = GOTO_SETTINGS[layout]
+            self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **first))
+            if second:
+                self._goto2 = GotoController(GotoConfig(episode_steps=episode_steps, **second[0]))
         self.step = 0
 
     @property

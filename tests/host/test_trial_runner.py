@@ -153,9 +153,21 @@ def test_that_a_trial_makes_its_decisions_on_task_frame_poses_and_ends_stopped(l
     wait_until(lambda: lab.agent.command == (0, 0), "the agent to be told to stop")
 
 
-def test_that_the_bundled_policy_drives_the_controller(lab: Lab) -> None:
+@pytest.fixture(scope="module")
+def bundled_nav_policy() -> OnnxPolicy:
+    """The bundled nav-flat policy, loaded before any lab starts. The first load imports
+    ONNX Runtime, whose library loading holds the interpreter for over a second; the
+    emulated Uno's event reader is a thread of this process, so simulated time stalls
+    with it, and the agent (also a thread here) rightly calls the silence a lost serial
+    link. In a lab the agent runs on the Pi and the firmware on the Uno."""
     policy = OnnxPolicy(bundled_policy("nav-flat"), task="nav-flat")
     policy.bind_design(XI3_ROBOT)  # as trial run --design does; a design-conditioned policy needs it
+    return policy
+
+
+def test_that_the_bundled_policy_drives_the_controller(bundled_nav_policy: OnnxPolicy, lab: Lab) -> None:
+    policy = bundled_nav_policy
+    policy.reset()
     result = lab.controller(policy).run_trial()
     assert result.status == "complete" and result.decisions == 5
 

@@ -121,3 +121,52 @@ def test_that_a_sweep_file_of_another_sweep_is_not_continued(tmp_path: Path,
         assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "3", "--out", str(out)]) == 2
         assert message in capsys.readouterr().err
         assert out.read_text() == before
+
+
+# --------------------------------------------------------------------------- dual-plan
+def test_that_the_dual_plan_layouts_gotos_are_plan_and_plan_with_the_thesis_robots_turning() -> None:
+    from tumblebot.sim.control.goto import NAVIGATORS
+    from tumblebot.sim.observation import DUAL_LAYOUTS, GOTO_SETTINGS, LAYOUTS, PLAN_DUAL_GOTO, PLAN_GOTO
+
+    assert DUAL_LAYOUTS == ("dual", "dual-plan") and LAYOUTS["dual-plan"] == LAYOUTS["dual"]
+    assert GotoConfig(**PLAN_GOTO) == NAVIGATORS["plan"]  # pinned: plan's defaults may move, the layout may not
+    assert GotoConfig(**PLAN_DUAL_GOTO) == GotoConfig(memory=0.25, turn_tolerance=0.3, spin_steps_left=4)
+    assert GOTO_SETTINGS["dual-plan"] == (PLAN_GOTO, PLAN_DUAL_GOTO)
+
+
+def test_that_a_dual_plan_choice_teaches_plans_two_settings_and_says_so_in_its_file(tmp_path: Path) -> None:
+    from tumblebot.sim.observation import PLAN_DUAL_GOTO, PLAN_GOTO
+
+    records = [{**r, "layout": "dual-plan"} for r in _records()]
+    choice = GotoChoice.fit(records)
+    assert choice.layout == "dual-plan" and choice.settings == (PLAN_GOTO, PLAN_DUAL_GOTO)
+    teacher = choice_teacher(choice)
+    assert teacher(np.array([0.25, 0.12, 0.10, 0.20])) == GotoConfig(**PLAN_DUAL_GOTO)
+    assert teacher(np.array([0.25, 0.20, 0.18, 0.15])) == GotoConfig(**PLAN_GOTO)
+    path = tmp_path / "choice.json"
+    path.write_text(choice.to_json())
+    assert json.loads(path.read_text())["layout"] == "dual-plan" and GotoChoice.load(path).layout == "dual-plan"
+    with pytest.raises(TrainingError, match="mixes the goto settings of dual, dual-plan"):
+        GotoChoice.fit([*records[:10], *_records()[10:]])
+
+
+def test_that_imitate_refuses_a_choice_fitted_for_the_other_layout_before_writing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "choice.json"
+    path.write_text(GotoChoice.fit(_records()).to_json())  # a dual choice (sweeps without a layout were dual)
+    run = tmp_path / "run"
+    assert main(["imitate", "--run-dir", str(run), "--observation", "dual-plan", "--iterations", "1",
+                 "--choice", str(path)]) == 2
+    assert "fitted for the dual layout's gotos, not dual-plan's" in capsys.readouterr().err
+    assert not run.exists()
+
+
+def test_that_a_sweep_of_the_other_layout_is_not_continued(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sweep.jsonl"
+    first = tumbling_designs(3, seed=3)[0]
+    out.write_text(json.dumps({"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3,
+                               "seeding": SEEDING, "physics": THESIS.digest(), "difference": 0.0, "se": 0.01}) + "\n")
+    before = out.read_text()
+    assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "3", "--layout", "dual-plan",
+                 "--out", str(out)]) == 2
+    assert "--layout dual-plan" in capsys.readouterr().err and out.read_text() == before

@@ -557,3 +557,25 @@ def test_that_a_card_whose_observation_fields_are_not_a_list_is_one_clear_error(
     bad.with_suffix(".json").write_text(json.dumps(card))
     with pytest.raises(PolicyError, match="no observation layout"):
         OnnxPolicy(bad)
+
+
+def test_that_the_dual_plan_input_holds_plans_estimates_and_both_plan_gotos_actions() -> None:
+    from tumblebot.sim.control.goto import GotoConfig
+    from tumblebot.sim.observation import PLAN_DUAL_GOTO, PLAN_GOTO, field_index
+
+    env = TumblerEnv(task="nav-flat", design=XI3)
+    context = ObservationContext("dual-plan")
+    first, second = GotoController(GotoConfig(**PLAN_GOTO)), GotoController(GotoConfig(**PLAN_DUAL_GOTO))
+    step_length = field_index("dual-plan", "memory_step_length")
+    try:
+        obs, _ = env.reset(seed=3)
+        context.reset(XI3.as_tuple())
+        for step in range(20):
+            x = context(obs)
+            action, other = first.act(obs, step), second.act(obs, step)
+            second.taken(action)
+            assert (int(x[-4]), int(x[-3])) == action and (int(x[-2]), int(x[-1])) == other
+            assert x[step_length] == pytest.approx(first.step_length, rel=1e-6)  # plan's memory: 0.25
+            obs, *_ = env.step(np.array(action))
+    finally:
+        env.close()
