@@ -75,8 +75,16 @@ def bundled_policy(task: str, layout: str | None = None) -> Path:
     return folder / f"{task}.onnx"
 
 
-def layout_named(fields: Sequence[str]) -> str:
-    """The name of the layout whose fields are ``fields``; :class:`PolicyError` if none."""
+def layout_named(fields: Sequence[str], name: object = None) -> str:
+    """The name of the layout whose fields are ``fields``; :class:`PolicyError` if none.
+    ``name`` is the layout a model card names (cards before ``dual-plan`` may name none):
+    two layouts can share their fields and differ in what computes them (``dual`` and
+    ``dual-plan``), so a named layout is taken as named, and must have these fields."""
+    if name is not None:
+        if not isinstance(name, str) or name not in LAYOUTS or tuple(fields) != LAYOUTS[name]:
+            raise PolicyError(f"observation layout {name!r} with fields {list(fields)!r} is none of the known "
+                              f"layouts ({', '.join(LAYOUTS)})")
+        return str(name)
     for name, layout in LAYOUTS.items():
         if tuple(fields) == layout:
             return name
@@ -219,7 +227,7 @@ class OnnxPolicy:
         if not isinstance(observation, dict) or not isinstance(observation.get("fields"), list):
             raise PolicyError(f"model card {cpath} has no observation layout (observation.fields)")
         try:
-            self.layout = layout_named(observation.get("fields", ()))
+            self.layout = layout_named(observation.get("fields", ()), observation.get("layout"))
         except PolicyError as exc:
             raise PolicyError(f"policy {path}: {exc}") from None
         graph = path.read_bytes()  # read once: the bytes hashed are the bytes run

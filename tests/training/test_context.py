@@ -193,24 +193,25 @@ def test_that_the_dual_input_holds_the_actions_of_both_gotos_at_every_step(drive
     assert differ > 0, "the two gotos never disagreed: the second is not the second setting"
 
 
-def _choice_file(folder: Path) -> Path:
-    """A goto choice from a made-up sweep: the second setting ahead where the legs are long."""
+def _choice_file(folder: Path, layout: str = "dual") -> Path:
+    """A goto choice from a made-up sweep of ``layout``'s two gotos: the second setting
+    ahead where the legs are long."""
     from tumblebot.sim.world.design import tumbling_designs
     from tumblebot.training.choice import GotoChoice
 
     designs = tumbling_designs(40, seed=1)
-    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03}
-               for d in designs]
+    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03,
+                "layout": layout} for d in designs]
     path = folder / "choice.json"
     path.write_text(GotoChoice.fit(records).to_json())
     return path
 
 
-@pytest.mark.parametrize("layout", ["memory", "residual", "dual"])
+@pytest.mark.parametrize("layout", ["memory", "residual", "dual", "dual-plan"])
 def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_network(layout: str,
                                                                                    tmp_path: Path) -> None:
     run, out = tmp_path / layout, tmp_path / "nav-flat.onnx"
-    choice = ["--choice", str(_choice_file(tmp_path))] if layout == "dual" else []
+    choice = ["--choice", str(_choice_file(tmp_path, layout))] if layout in ("dual", "dual-plan") else []
     assert main(["imitate", "--run-dir", str(run), "--iterations", "1", "--episodes", "2", "--updates", "10",
                  "--net-arch", "16,16", "--envs", "1", "--observation", layout, *choice]) == 0
     assert TrainConfig.load(run / "config.json").observation == layout
@@ -222,8 +223,9 @@ def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_netw
 
     model = PPO.load(run / "latest.zip", device="cpu")
     policy = OnnxPolicy(out, task="nav-flat")
+    assert policy.layout == layout  # dual-plan has dual's fields: the card's name decides which gotos run
     x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS[layout]))).astype(np.float32)
-    if layout in ("residual", "dual"):  # goto's proposals are commands, 0, 1 or 2 per leg
+    if layout in ("residual", "dual", "dual-plan"):  # goto's proposals are commands, 0, 1 or 2 per leg
         proposals = len(LAYOUTS[layout]) - len(LAYOUTS["memory"])
         x[:, -proposals:] = np.random.default_rng(1).integers(0, 3, size=(10_000, proposals))
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
@@ -579,3 +581,22 @@ def test_that_the_dual_plan_input_holds_plans_estimates_and_both_plan_gotos_acti
             obs, *_ = env.step(np.array(action))
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("named", ["dual", ["dual-plan"], "thesis", "warp"])
+def test_that_a_card_naming_a_layout_gets_that_layout_or_one_clear_error(named: object, tmp_path: Path) -> None:
+    import shutil
+
+    from tumblebot.sim.control.policy import card_path
+
+    source = bundled_policy("nav-flat")  # a dual card
+    policy = tmp_path / "p.onnx"
+    shutil.copy(source, policy)
+    card = json.loads(card_path(source).read_text())
+    card["observation"]["layout"] = named
+    card_path(policy).write_text(json.dumps(card))
+    if named == "dual":
+        assert OnnxPolicy(policy, task="nav-flat").layout == "dual"
+    else:  # the wrong fields for the name, or no layout of that name (or not a name at all)
+        with pytest.raises(PolicyError, match="none of the known layouts"):
+            OnnxPolicy(policy, task="nav-flat")
