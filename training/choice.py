@@ -113,6 +113,8 @@ def read_sweep(path: Path) -> list[dict[str, Any]]:
             record = json.loads(line)
             Design.from_sequence(record["design"])
             float(record["difference"])
+            if record.get("layout", "dual") not in DUAL_LAYOUTS:
+                raise ValueError(f"layout {record.get('layout')!r} is not one of {', '.join(DUAL_LAYOUTS)}")
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"{path}:{number}: not a sweep record ({exc})") from None
         records.append(record)
