@@ -19,9 +19,19 @@ from collections.abc import Sequence
 from tumblebot import interrupts
 from tumblebot.cliargs import check_writable, positive_float, positive_int
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.world.tasks import TASK_NAMES
 
-__all__ = ["TASK_NAMES", "build_parser", "main", "missing_extra"]
+__all__ = ["TASK_NAMES", "build_parser", "main", "missing_extra"]  # noqa: F822 (TASK_NAMES: __getattr__)
+
+
+def __getattr__(name: str) -> object:
+    """``TASK_NAMES``, imported when asked for: the simulator's package (Gymnasium, NumPy)
+    takes about 0.3 s to import, and until :func:`main` holds Ctrl-C
+    (:mod:`tumblebot.interrupts`), a Ctrl-C raised inside an import can be lost."""
+    if name == "TASK_NAMES":
+        from tumblebot.sim.world.tasks import TASK_NAMES
+
+        return TASK_NAMES
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def build_parser() -> argparse.ArgumentParser:
