@@ -256,7 +256,7 @@ def _export(args: argparse.Namespace) -> int:
     print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
     if args.eval_episodes > 0:
         from tumblebot.sim.control.policy import card_path
-        from tumblebot.training.card_eval import card_evaluation
+        from tumblebot.training.card_eval import card_evaluation, comparison_summary
 
         evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous)
         card = json.loads(card_path(args.output).read_text())
@@ -267,6 +267,8 @@ def _export(args: argparse.Namespace) -> int:
             print(f"{label}: mean R {entry['mean_R']:.3f} [{lo:.3f}, {hi:.3f}], best fixed gait "
                   f"{entry['best_fixed_gait']} {entry['baselines'][entry['best_fixed_gait']]['mean_R']:.3f} "
                   f"(p = {entry['p_vs_best_fixed_gait']:.2g}), random {entry['baselines']['random']['mean_R']:.3f}")
+        for which, comparison in evaluation.get("against_hand_written", {}).items():
+            print(f"against the hand-written controllers, {which} designs: {comparison_summary(comparison)}")
     return 0
 
 

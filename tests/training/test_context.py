@@ -530,7 +530,9 @@ def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger:
     first, second = tmp_path / "a" / "nav-flat.onnx", tmp_path / "b" / "nav-flat.onnx"
     assert main(["export", str(tiny_dagger), "-o", str(first), "--eval-episodes", "2"]) == 0
     card = json.loads(first.with_suffix(".json").read_text())
-    assert len(card["evaluation"]["against_goto"]["rows"]) == 12  # the grid, policy against goto
+    hand = card["evaluation"]["against_hand_written"]
+    assert len(hand["fixed"]["rows"]) == 12 and set(hand["fixed"]["rows"][0]["hand_written"]) == {"goto", "plan"}
+    assert len(hand["fresh"]["rows"]) == 24 and hand["fresh"]["design_seed"] == 104729  # drawn afresh
     assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2",
                  "--baselines-from", str(first.with_suffix(".json"))]) == 0
     again = json.loads(second.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
