@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python benchmarks/bench_policy.py --run RUN --policy POLICY.onnx``
 (defaults: the committed run the bundled ``nav-flat`` policy was exported from,
-``training/checkpoints/dual-nav-flat``, and that policy).
+``training/checkpoints/plan-nav-flat``, and that policy).
 
 1. Latency per observation, onnxruntime (:class:`OnnxPolicy`, what evaluation, the
    optimiser and the host use) against SB3 ``predict(deterministic=True)``, median and p99:
@@ -111,7 +111,7 @@ def throughput(policy: OnnxPolicy, episodes: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", type=Path, default=Path("training/checkpoints/dual-nav-flat"),
+    parser.add_argument("--run", type=Path, default=Path("training/checkpoints/plan-nav-flat"),
                         help="SB3 run folder or .zip (default: the committed run of the bundled nav-flat policy)")
     parser.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: bundled nav-flat)")
     parser.add_argument("--calls", type=int, default=5000)
