@@ -122,8 +122,10 @@ def main() -> int:
             r.close()
     diffs = np.array([r["policy_minus_best"] for r in rows])
     failed = [r for r in rows if r["fails_bar"]]
-    print(f"policy − strongest hand-written controller: mean {diffs.mean():+.3f}, worst {diffs.min():+.3f}; "
-          f"policy − goto: mean {np.mean([r['mean_R']['policy'] - r['mean_R']['goto'] for r in rows]):+.3f}")
+    each = "; ".join(f"policy − {n}: mean {np.mean([r['mean_R']['policy'] - r['mean_R'][n] for r in rows]):+.3f}"
+                     for n in hand if n in NAVIGATORS)
+    print(f"policy − strongest hand-written controller: mean {diffs.mean():+.3f}, worst {diffs.min():+.3f}"
+          + (f"; {each}" if each else ""))
     verdict = "met" if not failed and diffs.mean() > 0 else "NOT met"
     print(f"bar (no more than {BEHIND} behind wherever the best reaches {REACHES}, ahead on average): {verdict}"
           + (f" ({len(failed)} design{'' if len(failed) == 1 else 's'} behind)" if failed else ""))
