@@ -140,7 +140,10 @@ def _imitate(args: argparse.Namespace) -> int:
     config = TrainConfig(task=task, observation=args.observation, tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
                          **profile_from_args(args).as_fields())
-    print(f"imitating goto on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
+    teacher = "plan" if args.observation == "dual-plan" else "goto"  # dual-plan's gotos take plan's estimates
+    if args.choice is not None:
+        teacher += f" under the setting {args.choice} picks for each body"
+    print(f"imitating {teacher} on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
           f"{config.envs} environments, in {args.run_dir}")
     try:
         final = imitate(config, settings, args.run_dir,
