@@ -14,7 +14,7 @@ predicts it does better. A ``dual-plan`` policy is the same with the two setting
 :data:`~tumblebot.sim.observation.PLAN_DUAL_GOTO`): every function here takes the layout
 whose pair of settings it sweeps or fits (``dual`` by default).
 
-1. :func:`sweep` drives ``nav-flat`` episodes on designs drawn uniformly over those that
+1. :func:`sweep` drives ``nav-flat`` (or ``nav-terrain``) episodes on designs drawn uniformly over those that
    can tumble, under both settings, paired on the same episodes (the same randomisation
    as ``tumblebot evaluate``), and records each design's mean paired difference. Designs
    are appended to a JSON-lines file as they finish, so a stopped sweep resumes.
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from tumblebot.sim.control.drivers import episode_seed
-from tumblebot.sim.control.goto import GotoConfig, GotoController
+from tumblebot.sim.control.goto import NAVIGATION_TASKS, GotoConfig, GotoController, check_navigation_task
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
 from tumblebot.sim.observation import DUAL_LAYOUTS, GOTO_SETTINGS
@@ -54,12 +54,12 @@ FORMAT = "tumblebot-goto-choice/1"
 SEEDING = "episode_seed"
 
 
-def _sweep_env(physics: PhysicsProfile) -> Any:
-    """A worker's state: one nav-flat environment under ``physics``, every design its own."""
+def _sweep_env(physics: PhysicsProfile, task: str = "nav-flat") -> Any:
+    """A worker's state: one ``task`` environment under ``physics``, every design its own."""
     from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.randomization import Randomization
 
-    return TumblerEnv(task="nav-flat", randomization=physics.randomization(Randomization(design=False)),
+    return TumblerEnv(task=task, randomization=physics.randomization(Randomization(design=False)),
                       **physics.env_kwargs())
 
 
@@ -72,7 +72,7 @@ def check_layout(layout: str) -> str:
 
 
 def _episode(env: Any, job: tuple[tuple[float, ...], int, int, str]) -> tuple[float, float]:
-    """Final R of episode ``index`` of seed ``seed`` on nav-flat under the two goto
+    """Final R of episode ``index`` of seed ``seed`` under the two goto
     settings of ``layout`` (``dual``: ``RESIDUAL_GOTO`` and ``DUAL_GOTO``): the same
     episode (:func:`episode_seed`, as every evaluation seeds them), so the two are paired,
     and every design sees the same starts."""
@@ -85,12 +85,13 @@ def _episode(env: Any, job: tuple[tuple[float, ...], int, int, str]) -> tuple[fl
 
 def sweep(designs: Sequence[Design], episodes: int, seed: int, workers: int, done: int = 0,
           should_stop: Callable[[], bool] = lambda: False,
-          physics: PhysicsProfile = THESIS, layout: str = "dual") -> Iterator[dict[str, Any]]:
+          physics: PhysicsProfile = THESIS, layout: str = "dual", task: str = "nav-flat") -> Iterator[dict[str, Any]]:
     """Each design's record from ``done`` on: its two mean final Rs and the paired
-    difference (second setting minus first) with its standard error, under ``physics``,
-    for the two settings of ``layout``."""
+    difference (second setting minus first) with its standard error, on ``task`` under
+    ``physics``, for the two settings of ``layout``."""
     check_layout(layout)
-    with WorkerPool(_sweep_env, (physics,), workers) as pool:
+    check_navigation_task(task)
+    with WorkerPool(_sweep_env, (physics, task), workers) as pool:
         for index in range(done, len(designs)):
             if should_stop():
                 return
@@ -98,7 +99,7 @@ def sweep(designs: Sequence[Design], episodes: int, seed: int, workers: int, don
             R = np.array(pool.map(_episode, [(design, seed, e, layout) for e in range(episodes)], chunksize=4))
             diff = R[:, 1] - R[:, 0]
             yield {"index": index, "design": list(design), "episodes": episodes, "seed": seed,
-                   "seeding": SEEDING, "physics": physics.digest(), "layout": layout,
+                   "seeding": SEEDING, "physics": physics.digest(), "layout": layout, "task": task,
                    "goto": float(R[:, 0].mean()), "dual": float(R[:, 1].mean()),
                    "difference": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(episodes))}
 
@@ -143,6 +144,7 @@ class GotoChoice:
     differences: np.ndarray  #: (N,) mean paired difference of each (second − first)
     errors: np.ndarray  #: (N,) its standard error
     layout: str = "dual"  #: the policy layout whose two goto settings it chooses between
+    task: str = "nav-flat"  #: the task the sweep drove
 
     @property
     def settings(self) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -157,6 +159,9 @@ class GotoChoice:
         layouts = {r.get("layout", "dual") for r in records}  # sweeps before dual-plan were of dual
         if len(layouts) != 1:
             raise TrainingError(f"the sweep mixes the goto settings of {', '.join(sorted(layouts))}")
+        tasks = {r.get("task", "nav-flat") for r in records}  # sweeps before nav-terrain ones were of nav-flat
+        if len(tasks) != 1:
+            raise TrainingError(f"the sweep mixes the tasks {', '.join(sorted(tasks))}")
         layout = check_layout(layouts.pop())
         designs = np.array([r["design"] for r in records], dtype=float)
         differences = np.array([r["difference"] for r in records], dtype=float)
@@ -173,7 +178,7 @@ class GotoChoice:
             lost = totals[best] - totals[k]
             if lost <= float(np.sqrt(variances[best:k].sum())):
                 chosen = k
-        return cls(float(candidates[chosen]), designs, differences, errors, layout)
+        return cls(float(candidates[chosen]), designs, differences, errors, layout, tasks.pop())
 
     def prefers_dual(self, design: Sequence[float] | np.ndarray) -> bool:
         return bool(reach(design)[0] > self.threshold)
@@ -181,12 +186,12 @@ class GotoChoice:
     def summary(self) -> str:
         above = reach(self.designs) > self.threshold
         return (f"the second goto setting where l/r > {self.threshold:.3f}: {above.sum()} of {len(above)} swept "
-                f"designs, mean paired difference there {self.differences[above].mean():+.4f}, "
+                f"{self.task} designs, mean paired difference there {self.differences[above].mean():+.4f}, "
                 f"below {self.differences[~above].mean() if (~above).any() else float('nan'):+.4f}")
 
     def to_json(self) -> str:
         first, second = self.settings
-        return json.dumps({"format": FORMAT, "layout": self.layout, "first": first, "second": second,
+        return json.dumps({"format": FORMAT, "layout": self.layout, "task": self.task, "first": first, "second": second,
                            "rule": "l/r > threshold",
                            "threshold": self.threshold, "designs": self.designs.tolist(),
                            "differences": self.differences.tolist(), "errors": self.errors.tolist()}, indent=1) + "\n"
@@ -196,11 +201,15 @@ class GotoChoice:
         try:
             data = json.loads(Path(path).read_text())
             layout = data.get("layout", "dual")  # files before dual-plan were of dual
+            task = data.get("task", "nav-flat")  # ... and before nav-terrain of nav-flat
+            if task not in NAVIGATION_TASKS:
+                raise ValueError(f"task {task!r} is not one of {', '.join(NAVIGATION_TASKS)}")
             if data.get("format") != FORMAT or layout not in DUAL_LAYOUTS \
                     or [data.get("first"), data.get("second")] != list(GOTO_SETTINGS[layout]):
                 raise ValueError(f"not a {FORMAT} file for the pinned goto settings")
             choice = cls(float(data["threshold"]), np.array(data["designs"], dtype=float).reshape(-1, 4),
-                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float), layout)
+                         np.array(data["differences"], dtype=float), np.array(data["errors"], dtype=float), layout,
+                         task)
         except (OSError, json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"goto choice {path}: {exc}") from None
         if not len(choice.designs) == len(choice.differences) == len(choice.errors) \

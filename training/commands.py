@@ -392,6 +392,7 @@ def _choice(args: argparse.Namespace) -> int:
     teacher's rule fitted to it (:mod:`tumblebot.training.choice`)."""
     import numpy as np
 
+    from tumblebot.sim.control.goto import check_navigation_task
     from tumblebot.sim.world.design import Design, tumbling_designs
     from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep
     from tumblebot.training.config import TrainingError
@@ -403,6 +404,7 @@ def _choice(args: argparse.Namespace) -> int:
         print(choice.summary())
         return 0
     check_writable(args.out, "--out")
+    task = check_navigation_task(args.task)
     physics = profile_from_args(args)
     done = read_sweep(args.out) if args.out.exists() else []
     designs = tumbling_designs(args.designs, args.seed)
@@ -412,15 +414,16 @@ def _choice(args: argparse.Namespace) -> int:
                                 "episodes its own way: start a new file")
         same = (k < len(designs) and record.get("seed") == args.seed and record.get("episodes") == args.episodes
                 and record.get("physics") == physics.digest() and record.get("layout", "dual") == args.layout
+                and record.get("task", "nav-flat") == task
                 and np.allclose(record["design"], designs[k].as_tuple()))
         if not same:
             raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
                                 f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
-                                f"--layout {args.layout} under the {physics.describe()})")
+                                f"--layout {args.layout} --task {task} under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as out:
         for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics,
-                            layout=args.layout):
+                            layout=args.layout, task=task):
             out.write(json.dumps(record) + "\n")
             out.flush()
             print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
@@ -447,6 +450,8 @@ def _add_choice_command(sub: Subcommands) -> None:
     s.add_argument("--layout", choices=DUAL_LAYOUTS, default="dual",
                    help="whose two goto settings: dual (goto's defaults and the thesis robots' turning) or "
                         "dual-plan (the same two with plan's steadier estimates); default dual")
+    s.add_argument("--task", default="nav-flat", help="nav-flat (default) or nav-terrain: the task the "
+                                                     "settings are compared on")
     add_servo_arguments(s)
     f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
     f.add_argument("sweep", type=Path, help="the sweep's JSON-lines file")

@@ -170,3 +170,50 @@ def test_that_a_sweep_of_the_other_layout_is_not_continued(tmp_path: Path, capsy
     assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "3", "--layout", "dual-plan",
                  "--out", str(out)]) == 2
     assert "--layout dual-plan" in capsys.readouterr().err and out.read_text() == before
+
+
+# --------------------------------------------------------------------------- nav-terrain
+def test_that_a_terrain_sweep_drives_terrain_episodes_the_way_an_evaluation_does() -> None:
+    from tumblebot.sim.control.drivers import Driver
+    from tumblebot.sim.evaluation.runner import EpisodeRunner
+
+    design = Design(*XI3_ROBOT)
+    record = next(sweep([design], episodes=3, seed=0, workers=1, layout="dual-plan", task="nav-terrain"))
+    assert record["task"] == "nav-terrain"
+    runner = EpisodeRunner({"nav-terrain": Driver.of_gait("plan")}, workers=1)
+    try:
+        plan = runner.run(design, ["nav-terrain"], 0, 3, 0)["nav-terrain"]
+    finally:
+        runner.close()
+    assert record["goto"] == pytest.approx(float(plan.mean()), abs=1e-12)  # the first setting is plan itself
+    flat = next(sweep([design], episodes=3, seed=0, workers=1, layout="dual-plan"))
+    assert flat["task"] == "nav-flat" and flat["goto"] != record["goto"]
+
+
+def test_that_a_choice_says_which_task_it_was_swept_on_and_never_mixes_two(tmp_path: Path) -> None:
+    records = [{**r, "layout": "dual-plan", "task": "nav-terrain"} for r in _records()]
+    choice = GotoChoice.fit(records)
+    assert choice.task == "nav-terrain" and "nav-terrain designs" in choice.summary()
+    path = tmp_path / "choice.json"
+    path.write_text(choice.to_json())
+    assert GotoChoice.load(path).task == "nav-terrain"
+    assert GotoChoice.fit(_records()).task == "nav-flat"  # sweeps before the task was recorded were of nav-flat
+    with pytest.raises(TrainingError, match="mixes the tasks nav-flat, nav-terrain"):
+        GotoChoice.fit([*records[:10], *({**r, "layout": "dual-plan"} for r in _records()[10:])])
+    path.write_text(choice.to_json().replace('"nav-terrain"', '"incline"'))
+    with pytest.raises(TrainingError, match="task 'incline' is not one of"):
+        GotoChoice.load(path)
+
+
+def test_that_a_sweep_of_the_other_task_is_not_continued(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sweep.jsonl"
+    first = tumbling_designs(3, seed=3)[0]
+    out.write_text(json.dumps({"index": 0, "design": list(first.as_tuple()), "episodes": 48, "seed": 3,
+                               "seeding": SEEDING, "physics": THESIS.digest(), "layout": "dual-plan",
+                               "difference": 0.0, "se": 0.01}) + "\n")  # no task: a nav-flat sweep
+    before = out.read_text()
+    assert main(["choice", "sweep", "--designs", "3", "--episodes", "48", "--seed", "3", "--layout", "dual-plan",
+                 "--task", "nav-terrain", "--out", str(out)]) == 2
+    assert "--task nav-terrain" in capsys.readouterr().err and out.read_text() == before
+    assert main(["choice", "sweep", "--designs", "3", "--task", "incline", "--out", str(out)]) == 2
+    assert "not navigation" in capsys.readouterr().err and out.read_text() == before
