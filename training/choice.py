@@ -185,9 +185,11 @@ class GotoChoice:
 
     def summary(self) -> str:
         above = reach(self.designs) > self.threshold
+        def mean(where: np.ndarray) -> str:
+            return f"{self.differences[where].mean():+.4f}" if where.any() else "none"
+
         return (f"the second goto setting where l/r > {self.threshold:.3f}: {above.sum()} of {len(above)} swept "
-                f"{self.task} designs, mean paired difference there {self.differences[above].mean():+.4f}, "
-                f"below {self.differences[~above].mean() if (~above).any() else float('nan'):+.4f}")
+                f"{self.task} designs, mean paired difference there {mean(above)}, below {mean(~above)}")
 
     def to_json(self) -> str:
         first, second = self.settings
