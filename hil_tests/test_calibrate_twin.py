@@ -29,10 +29,12 @@ def test_calibration_from_twin_identification_runs_finds_the_hidden_servo(tmp_pa
     world = tmp_path / "hidden.json"
     world.write_text(json.dumps(HIDDEN))
     out = tmp_path / "excite"
-    run = tb("twin", "run", "--out", str(out), "--policy", "excite", "--points", "5", "--per-point", "2",
+    run = tb("twin", "run", "--out", str(out), "--policy", "excite", "--points", "5", "--per-point", "3",
              "--world-physics", str(world))
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
-    assert len(load_index(out)["trials"]) == 10
+    # 15 trials, as benchmarks/bench_calibrate.py takes: with 10, the free speed's interval once came out
+    # 0.6 % too wide to call identified (CI on a machine loaded three times over)
+    assert len(load_index(out)["trials"]) == 15
     fitted = tmp_path / "lab.json"
     cal = tb("calibrate", str(out), "-o", str(fitted), "--budget", str(MIN_DESIGN_POINTS), "--json")
     assert cal.returncode == 0, cal.stderr[-3000:]
