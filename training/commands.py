@@ -421,13 +421,15 @@ def _choice(args: argparse.Namespace) -> int:
                                 f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
                                 f"--layout {args.layout} --task {task} under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    first = "plan" if args.layout == "dual-plan" else "goto"  # the record's "goto" key is the first setting's R
     with args.out.open("a") as out:
         for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics,
                             layout=args.layout, task=task):
             out.write(json.dumps(record) + "\n")
             out.flush()
             print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
-                  f"goto {record['goto']:.3f}, {record['difference']:+.3f} ± {record['se']:.3f}", flush=True)
+                  f"{first} {record['goto']:.3f}, second setting {record['difference']:+.3f} ± {record['se']:.3f}",
+                  flush=True)
     return 0
 
 

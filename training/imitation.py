@@ -234,13 +234,14 @@ class IterationSummary:
     """One DAgger iteration, as ``imitation.csv`` records it."""
 
     iteration: int
-    driver: str  #: "goto" or "student"
+    driver: str  #: the teacher's name ("goto" or "plan") or "student"
     episodes: int
     dataset: int  #: labelled states aggregated so far
-    agreement: float  #: the student's agreement with goto where it drove (NaN for goto)
+    agreement: float  #: the student's agreement with its teacher where it drove (NaN for the teacher)
     mean_final_R: float  #: of this iteration's episodes, under its driver
     cross_entropy: float  #: after fitting
     wall_seconds: float
+    teacher: str = "goto"  #: the hand-written controller imitated
 
     def row(self) -> tuple[object, ...]:
         student = self.driver == "student"
@@ -250,7 +251,7 @@ class IterationSummary:
                 f"{self.wall_seconds:.1f}")
 
     def describe(self) -> str:
-        agreement = f", agreement with goto {self.agreement:.3f}" if self.driver == "student" else ""
+        agreement = f", agreement with {self.teacher} {self.agreement:.3f}" if self.driver == "student" else ""
         return (f"DAgger {self.iteration}: {self.driver} mean final R {self.mean_final_R:.3f}{agreement}; "
                 f"cross-entropy after fitting {self.cross_entropy:.3f}")
 
@@ -330,6 +331,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     needs ``choice``, a :class:`~tumblebot.training.choice.GotoChoice` file: its teacher is
     goto with the settings that file predicts better for each body (copied into the run)."""
     teacher, record = goto_teacher(), None
+    name = "plan" if config.observation == "dual-plan" else "goto"  # dual-plan's gotos take plan's estimates
     dual = config.observation in DUAL_LAYOUTS
     if dual != (choice is not None):
         raise TrainingError(f"a {' or '.join(DUAL_LAYOUTS)} student needs --choice (which goto settings suit which "
@@ -358,7 +360,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     with stop_requests() as stop:
         try:
             for iteration in range(imitation.iterations):
-                driver = "student" if iteration > 0 else "goto"
+                driver = "student" if iteration > 0 else name
                 with tqdm(total=imitation.episodes, unit="ep", dynamic_ncols=True, mininterval=2.0,
                           desc=f"DAgger {iteration}/{imitation.iterations - 1} ({driver})") as bar:
                     batch = collect(model, env, imitation.episodes, iteration > 0, config.gamma, EPISODE_STEPS,
@@ -368,7 +370,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
                 dataset, loss = _fit_and_save(model, optimiser, data, imitation, config.seed + iteration, stop,
                                               run_dir)
                 summary = IterationSummary(iteration, driver, len(batch.final_R), dataset, batch.student_agreement,
-                                           float(np.mean(batch.final_R)), loss, time.monotonic() - start)
+                                           float(np.mean(batch.final_R)), loss, time.monotonic() - start, name)
                 _end_iteration(model, run_dir, logs, summary, batch, steps, on_iteration)
         except KeyboardInterrupt:
             raise TrainingInterrupted(steps, run_dir) from None

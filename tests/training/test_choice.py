@@ -4,6 +4,7 @@ DAgger teacher of a ``dual`` policy that follows it."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -220,3 +221,20 @@ def test_that_a_sweep_of_the_other_task_is_not_continued(tmp_path: Path, capsys:
     assert "--task nav-terrain" in capsys.readouterr().err and out.read_text() == before
     assert main(["choice", "sweep", "--designs", "3", "--task", "incline", "--out", str(out)]) == 2
     assert "not navigation" in capsys.readouterr().err and out.read_text() == before
+
+
+def test_that_a_plan_student_names_its_teacher_in_its_log_and_a_plan_sweep_its_first_setting(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sweep.jsonl"
+    assert main(["choice", "sweep", "--designs", "1", "--episodes", "2", "--seed", "3", "--layout", "dual-plan",
+                 "--workers", "1", "--out", str(out)]) == 0
+    assert re.search(r": plan -?\d\.\d{3}, second setting [+-]\d\.\d{3} ± ", capsys.readouterr().out)
+    path = tmp_path / "choice.json"
+    path.write_text(GotoChoice.fit([{**r, "layout": "dual-plan"} for r in _records()]).to_json())
+    run = tmp_path / "run"
+    assert main(["imitate", "--run-dir", str(run), "--observation", "dual-plan", "--choice", str(path),
+                 "--iterations", "2", "--episodes", "2", "--updates", "2", "--envs", "1", "--net-arch", "8,8"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("imitating plan under the setting") and "agreement with plan" in printed
+    rows = [line.split(",") for line in (run / "imitation.csv").read_text().splitlines()]
+    assert [r[1] for r in rows[1:]] == ["plan", "student"]
