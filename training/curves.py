@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,6 +90,32 @@ def lineage(run: Path) -> list[tuple[Path, int, str | None]]:
     return chain[::-1]
 
 
+def _plot_iterations(ax: Any, folder: Path, x: np.ndarray, values: np.ndarray, color: str) -> None:
+    """A DAgger run on ``ax``: each iteration's mean final-state R with its 95 % interval
+    (its episodes share one step count, so a moving average would draw steps), the
+    teacher's iteration hollow, the student's filled, labelled with the student's agreement
+    with its teacher."""
+    with (folder / "imitation.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    ends = np.unique(x)
+    means = np.array([float(np.mean(values[x == e])) for e in ends])
+    half = np.array([1.96 * float(np.std(values[x == e], ddof=1)) / math.sqrt(max(int(np.sum(x == e)), 1))
+                     if np.sum(x == e) > 1 else 0.0 for e in ends])
+    rows = [*rows[:len(ends)], *[{"driver": "student"}] * (len(ends) - len(rows))]  # a run stopped mid-write
+    ax.plot(ends, means, color=color, linewidth=1.2, alpha=0.6)
+    for e, m, h, row in zip(ends, means, half, rows, strict=True):
+        student = row["driver"] == "student"
+        ax.errorbar([e], [m], yerr=[h], fmt="o", color=color, capsize=3,
+                    markerfacecolor=color if student else "white")
+        if student and row.get("agreement"):
+            ax.annotate(f"{float(row['agreement']):.3f}", (e, m), textcoords="offset points", xytext=(0, 8),
+                        ha="center", fontsize=7, color=color)
+    teacher = next((r["driver"] for r in rows if r["driver"] != "student"), "the teacher")
+    ax.plot([], [], "o", color=color, markerfacecolor="white", label=f"{folder.name}: {teacher} drives (DAgger 0)")
+    ax.plot([], [], "o", color=color, label=f"{folder.name}: the student drives (its agreement with {teacher} "
+                                            "above each point)")
+
+
 def plot_lineages(runs: list[Path], png_path: Path) -> list[list[str]]:
     """One panel per run: its final-state R over environment steps, with every run it was
     warm-started from before it on the same axis (each segment labelled, a dashed line
@@ -110,11 +138,14 @@ def plot_lineages(runs: list[Path], png_path: Path) -> list[list[str]]:
                 mask = steps <= nxt
                 steps, values = steps[mask], values[mask]
             x = steps + offset
-            ax.plot(x, values, color=f"C{k}", alpha=0.12, linewidth=0.5)
-            window = max(1, min(500, len(values) // 20))
-            if len(values) >= window:
-                ax.plot(x[window - 1:], _smooth(values, window), color=f"C{k}", linewidth=1.8,
-                        label=f"{folder.name} ({len(values)} episodes)")
+            if (folder / "imitation.csv").is_file():
+                _plot_iterations(ax, folder, x, values, f"C{k}")
+            else:
+                ax.plot(x, values, color=f"C{k}", alpha=0.12, linewidth=0.5)
+                window = max(1, min(500, len(values) // 20))
+                if len(values) >= window:
+                    ax.plot(x[window - 1:], _smooth(values, window), color=f"C{k}", linewidth=1.8,
+                            label=f"{folder.name} ({len(values)} episodes)")
             if k > 0:
                 ax.axvline(offset, color="grey", ls="--", lw=1)
             offset += int(nxt if nxt >= 0 else (steps[-1] if len(steps) else 0))

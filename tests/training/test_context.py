@@ -602,3 +602,24 @@ def test_that_a_card_naming_a_layout_gets_that_layout_or_one_clear_error(named: 
     else:  # the wrong fields for the name, or no layout of that name (or not a name at all)
         with pytest.raises(PolicyError, match="none of the known layouts"):
             OnnxPolicy(policy, task="nav-flat")
+
+
+def test_that_a_dagger_run_is_drawn_one_point_per_iteration(tiny_dagger: Path, tmp_path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tumblebot.training.curves import _plot_iterations, read_episodes
+
+    data = read_episodes(tiny_dagger / "episodes.csv")
+    fig, ax = plt.subplots()
+    _plot_iterations(ax, tiny_dagger, data["steps"], data["final_R"], "C0")
+    means = [c.lines[0].get_ydata()[0] for c in ax.containers]
+    assert len(means) == 2  # one mean (with its interval) per iteration, not a moving average
+    assert means[0] == pytest.approx(float(np.mean(data["final_R"][data["steps"] == data["steps"].min()])))
+    labels = [h.get_label() for h in ax.get_legend_handles_labels()[0]]
+    assert "bc: goto drives (DAgger 0)" in labels
+    plt.close(fig)
+    assert main(["curve", str(tiny_dagger), "-o", str(tmp_path / "curve.png")]) == 0
+    assert (tmp_path / "curve.png").stat().st_size > 1000
