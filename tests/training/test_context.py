@@ -615,7 +615,7 @@ def test_that_a_dagger_run_is_drawn_one_point_per_iteration(tiny_dagger: Path, t
     data = read_episodes(tiny_dagger / "episodes.csv")
     fig, ax = plt.subplots()
     _plot_iterations(ax, tiny_dagger, data["steps"], data["final_R"], "C0")
-    means = [c.lines[0].get_ydata()[0] for c in ax.containers]
+    means = [c[0].get_ydata()[0] for c in ax.containers]  # an errorbar container: (data line, caps, bars)
     assert len(means) == 2  # one mean (with its interval) per iteration, not a moving average
     assert means[0] == pytest.approx(float(np.mean(data["final_R"][data["steps"] == data["steps"].min()])))
     labels = [h.get_label() for h in ax.get_legend_handles_labels()[0]]
