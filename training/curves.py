@@ -110,10 +110,11 @@ def _plot_iterations(ax: Any, folder: Path, x: np.ndarray, values: np.ndarray, c
         if student and row.get("agreement"):
             ax.annotate(f"{float(row['agreement']):.3f}", (e, m), textcoords="offset points", xytext=(0, 8),
                         ha="center", fontsize=7, color=color)
-    teacher = next((r["driver"] for r in rows if r["driver"] != "student"), "the teacher")
-    ax.plot([], [], "o", color=color, markerfacecolor="white", label=f"{folder.name}: {teacher} drives (DAgger 0)")
-    ax.plot([], [], "o", color=color, label=f"{folder.name}: the student drives (its agreement with {teacher} "
-                                            "above each point)")
+    teacher = next((r["driver"] for r in rows if r["driver"] != "student"), None)
+    if teacher is not None:  # a refine run's iterations are all the student's
+        ax.plot([], [], "o", color=color, markerfacecolor="white", label=f"{folder.name}: {teacher} drives (DAgger 0)")
+    ax.plot([], [], "o", color=color, label=f"{folder.name}: the student drives (its agreement with "
+                                            f"{teacher or 'its teacher'} above each point)")
 
 
 def plot_lineages(runs: list[Path], png_path: Path) -> list[list[str]]:
