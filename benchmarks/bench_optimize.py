@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.sim.control.drivers import Driver
 from tumblebot.sim.control.policy import bundled_policy, sha256_of
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import (
@@ -55,16 +56,23 @@ from tumblebot.sim.world.power import energy_per_metre
 FRESH_SEED = 10_000
 
 
-def study_config(objective: Objective, recipe: Recipe, seed: int) -> StudyConfig:
-    """What ``tumblebot optimize`` records for this objective with the bundled policies."""
-    return StudyConfig.of(objective, recipe, seed, {t: sha256_of(bundled_policy(t)) for t in objective.tasks})
+#: The policy the committed reference study was made with (the nav-flat policy bundled on
+#: 2026-12-01), so the reference is reused, not redone, whatever policy is bundled today.
+REFERENCE_POLICY = Path(__file__).parent / "results" / "optimize-reference-nav-flat.onnx"
+
+
+def study_config(objective: Objective, recipe: Recipe, seed: int, policy: Path | None = None) -> StudyConfig:
+    """What ``tumblebot optimize`` records for this objective with the bundled policies (or
+    with ``policy`` driving the one task)."""
+    files = {t: policy or bundled_policy(t) for t in objective.tasks}
+    return StudyConfig.of(objective, recipe, seed, {t: sha256_of(f) for t, f in files.items()})
 
 
 def run_recipe(objective: Objective, recipe: Recipe, seed: int, runner: EpisodeRunner | None, url: str, name: str,
-               budget: int | None = None) -> dict[str, Any]:
+               budget: int | None = None, policy: Path | None = None) -> dict[str, Any]:
     """Run (or resume) a study to its end; its optimum, episodes and wall time."""
     storage = open_storage(url)
-    study = open_study(storage, name, study_config(objective, recipe, seed))
+    study = open_study(storage, name, study_config(objective, recipe, seed, policy))
     t0 = time.perf_counter()
     optimize(study, objective, recipe, runner, seed, episode_budget=budget)
     best = best_candidate(study)
@@ -108,7 +116,11 @@ def main() -> None:
     ap.add_argument("--reference-storage", default="sqlite:///benchmarks/results/optimize-reference.db")
     ap.add_argument("--fresh-reference", action="store_true", help="run a new reference study (a new name)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/optimize.json"))
-    args = ap.parse_args()
+    ap.add_argument("--policy", type=Path, default=REFERENCE_POLICY,
+                    help="the ONNX policy that drives every study's episodes (default: the one the committed "
+                         "reference was made with; --fresh-reference with the bundled one: "
+                         "--policy policies/nav-flat.onnx)")
+    args = _checked(ap.parse_args())
 
     objective = Objective({args.task: 1.0}, args.xi)
     reference = Recipe("standard", args.designs, args.batch, args.designs // 2, args.batch)
@@ -118,11 +130,11 @@ def main() -> None:
         Path(args.reference_storage[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     cache: dict[tuple[float, ...], np.ndarray] = {}
-    with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: bundled_policy(args.task)},
+    with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: Driver("onnx", str(args.policy))},
                                                              workers=args.workers) as runner:
         print(f"reference: {args.designs} trials at B = {args.batch} in {args.reference_storage} ({ref_name}) …",
               flush=True)
-        ref = run_recipe(objective, reference, 0, runner, args.reference_storage, ref_name)
+        ref = run_recipe(objective, reference, 0, runner, args.reference_storage, ref_name, policy=args.policy)
         budget = int(args.fraction * ref["episodes"])
         ref_scores = fresh_scores(objective, runner, ref["design"], args.final_episodes, cache)
         ref["fresh_objective"] = float(np.mean(ref_scores))
@@ -133,7 +145,7 @@ def main() -> None:
             efficient = Recipe("efficient", 100_000, args.batch, args.startup, args.screen, promote_every=0,
                                final_promotions=1)
             eff = run_recipe(objective, efficient, seed, runner, f"sqlite:///{Path(tmp) / f'eff-{seed}.db'}",
-                             f"efficient-{seed}", budget=budget)
+                             f"efficient-{seed}", budget=budget, policy=args.policy)
             scores = fresh_scores(objective, runner, eff["design"], args.final_episodes, cache)
             eff["fresh_objective"] = float(np.mean(scores))
             p = paired_p(scores, ref_scores)
@@ -159,6 +171,12 @@ def main() -> None:
            "reference": ref, "efficient": rows, "tied_or_better": ok}
     args.json.write_text(json.dumps(out, indent=2, default=_json) + "\n")
     print(f"wrote {args.json}")
+
+
+def _checked(args: argparse.Namespace) -> argparse.Namespace:
+    if args.task != "nav-flat" and args.policy == REFERENCE_POLICY:
+        raise SystemExit(f"--task {args.task}: give --policy (the default drives nav-flat)")
+    return args
 
 
 def _design(w: tuple[float, ...]) -> str:
