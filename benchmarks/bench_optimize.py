@@ -6,7 +6,10 @@ The reference is the thesis's acquisition scaled down: ``--designs`` trials (hal
 random, half by Optuna's GP-EI), every design on the full batch ``B = 240`` (the full
 schedule, 2000 designs, is 480 000 episodes: about 9 hours of both cores here). It lives in
 ``--reference-storage`` and is reused (and resumed, if unfinished) by later runs, since it
-is the expensive part: ~30 min on 2 cores. ``--fresh-reference`` runs a new one.
+is the expensive part: ~30 min on 2 cores. ``--fresh-reference`` runs a new one. Every study
+is driven by ``--policy``, by default the policy the committed reference was made with
+(``benchmarks/results/optimize-reference-nav-flat.onnx``), so the reference stays valid
+when the bundled policy changes.
 
 Then, for each of ``--seeds`` seeds, the efficient recipe runs in a fresh SQLite study with
 ``--fraction`` (5 %) of the reference's episodes: designs screened on ``--screen`` episodes,
