@@ -200,7 +200,7 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
               f"{f_fit[s].mean():.5f}; under the true profile {tuple(round(v, 3) for v in true_w[s])} "
               f"{f_true[s].mean():.5f}; paired p = {p:.3g} ({verdict})")
     agree = 0
-    for s in range(seeds if seeds > 1 else 0):
+    for s in range(yardstick_pairs(seeds)):
         t = (s + 1) % seeds
         p = paired(f_true[s], f_true[t])
         agree += p > 0.05
@@ -209,12 +209,17 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
     return ties, seeds, agree
 
 
+def yardstick_pairs(seeds: int) -> int:
+    """Pairs of neighbouring seeds in a ring of ``seeds`` (one for two seeds, none for one)."""
+    return seeds if seeds > 2 else seeds - 1
+
+
 def _tally(row: dict[str, Any], k: int) -> str:
     """``a/n`` of a decision row's count ``k`` (the fitted ties, or the true-profile yardstick)."""
     if "decision" not in row:
         return f"{'-':16s}"
     ties, seeds, agree = row["decision"]
-    n = seeds if k == 0 else (seeds if seeds > 1 else 0)
+    n = seeds if k == 0 else yardstick_pairs(seeds)
     return f"{(ties if k == 0 else agree)}/{n}".ljust(16)
 
 
