@@ -127,6 +127,7 @@ def _inherited(init_from: Path | None) -> dict[str, Any]:
 
 def _imitate(args: argparse.Namespace) -> int:
     from tumblebot.sim.control.goto import check_navigation_task
+    from tumblebot.sim.observation import teacher_name
     from tumblebot.training.ppo import TrainingInterrupted
 
     if args.refine is not None:
@@ -140,7 +141,7 @@ def _imitate(args: argparse.Namespace) -> int:
     config = TrainConfig(task=task, observation=args.observation, tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
                          **profile_from_args(args).as_fields())
-    teacher = "plan" if args.observation == "dual-plan" else "goto"  # dual-plan's gotos take plan's estimates
+    teacher = teacher_name(args.observation)
     if args.choice is not None:
         teacher += f" under the setting {args.choice} picks for each body"
     print(f"imitating {teacher} on {task}: {settings.iterations} DAgger iterations of {settings.episodes} episodes, "
@@ -393,6 +394,7 @@ def _choice(args: argparse.Namespace) -> int:
     import numpy as np
 
     from tumblebot.sim.control.goto import check_navigation_task
+    from tumblebot.sim.observation import teacher_name
     from tumblebot.sim.world.design import Design, tumbling_designs
     from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep
     from tumblebot.training.config import TrainingError
@@ -421,7 +423,7 @@ def _choice(args: argparse.Namespace) -> int:
                                 f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
                                 f"--layout {args.layout} --task {task} under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    first = "plan" if args.layout == "dual-plan" else "goto"  # the record's "goto" key is the first setting's R
+    first = teacher_name(args.layout)  # the record's "goto" key is the first setting's R
     with args.out.open("a") as out:
         for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics,
                             layout=args.layout, task=task):

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import csv
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from tumblebot.sim.evaluation.stats import mean_ci95
 
 
 def read_episodes(path: Path) -> dict[str, np.ndarray]:
@@ -99,8 +100,7 @@ def _plot_iterations(ax: Any, folder: Path, x: np.ndarray, values: np.ndarray, c
         rows = list(csv.DictReader(fh))
     ends = np.unique(x)
     means = np.array([float(np.mean(values[x == e])) for e in ends])
-    half = np.array([1.96 * float(np.std(values[x == e], ddof=1)) / math.sqrt(max(int(np.sum(x == e)), 1))
-                     if np.sum(x == e) > 1 else 0.0 for e in ends])
+    half = np.array([mean - mean_ci95(values[x == e])[0] for e, mean in zip(ends, means, strict=True)])
     rows = [*rows[:len(ends)], *[{"driver": "student"}] * (len(ends) - len(rows))]  # a run stopped mid-write
     ax.plot(ends, means, color=color, linewidth=1.2, alpha=0.6)
     for e, m, h, row in zip(ends, means, half, rows, strict=True):

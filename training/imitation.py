@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.control.goto import GotoConfig, GotoController
-from tumblebot.sim.observation import DUAL_LAYOUTS, EPISODE_STEPS, fields_slice
+from tumblebot.sim.observation import DUAL_LAYOUTS, EPISODE_STEPS, fields_slice, teacher_name
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -331,7 +331,7 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     needs ``choice``, a :class:`~tumblebot.training.choice.GotoChoice` file: its teacher is
     goto with the settings that file predicts better for each body (copied into the run)."""
     teacher, record = goto_teacher(), None
-    name = "plan" if config.observation == "dual-plan" else "goto"  # dual-plan's gotos take plan's estimates
+    name = teacher_name(config.observation)
     dual = config.observation in DUAL_LAYOUTS
     if dual != (choice is not None):
         raise TrainingError(f"a {' or '.join(DUAL_LAYOUTS)} student needs --choice (which goto settings suit which "
