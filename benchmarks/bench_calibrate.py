@@ -173,10 +173,13 @@ def objectives(design: tuple[float, ...], truth: Path, folder: Path, episodes: i
 
 
 def paired(a: np.ndarray, b: np.ndarray) -> float:
-    """Paired t-test p of two designs' per-episode objectives (1 where they are the same design)."""
-    from scipy.stats import ttest_rel
+    """Paired t-test p of two designs' per-episode objectives (the report's; 1 where they are the same design)."""
+    from tumblebot.sim.report import paired_p
 
-    return 1.0 if np.allclose(a, b) else float(ttest_rel(a, b).pvalue)
+    p = paired_p(a, b)
+    if p is None:
+        raise SystemExit(f"two designs were evaluated on {len(a)} and {len(b)} episodes: not paired")
+    return p
 
 
 def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int = 480) -> tuple[int, int, int]:
