@@ -198,12 +198,13 @@ def _twin_run(args: argparse.Namespace) -> int:
 
     servo = _servo_of(args)
     from tumblebot.sim.control.drivers import Driver
+    from tumblebot.sim.control.gaits import GAITS
 
-    if args.policy != "excite":
+    if args.policy not in GAITS:
         Driver("onnx", str(_policy_path(args.policy)), args.allow_servo_mismatch).check("nav-flat", servo)
     elif args.check:
-        raise TumblebotError("--check compares a policy's trials with simulation; the identification run (--policy "
-                             "excite) is for tumblebot calibrate")
+        raise TumblebotError(f"--check compares a policy's trials with simulation; a scripted gait (--policy "
+                             f"{args.policy}) runs open loop: give its trials to tumblebot calibrate")
     if args.foxglove is not None:
         from tumblebot.host.live import parse_listen
 
@@ -581,7 +582,8 @@ def _add_twin_commands(sub: Any, positive_int: Any) -> None:
     t.add_argument("--out", type=Path, required=True, help="trial-set folder")
     t.add_argument("--design", default=XI3_ROBOT_TEXT, help="robot design (default: the ξ = 3 robot)")
     t.add_argument("--policy", default="nav-flat",
-                   help="nav-flat, an ONNX file, or excite (the identification run of tumblebot bench excite)")
+                   help="nav-flat, an ONNX file, or a scripted gait run open loop (excite: the identification run "
+                        "of tumblebot bench excite; forward, pulse, …: held-out trials for a calibration)")
     t.add_argument("--setpoint", type=_xy, default=(0.4, -0.3), help="lab-frame goal X,Y (default 0.4,-0.3)")
     t.add_argument("--heading", type=float, default=0.5, help="task-frame heading, rad (default 0.5)")
     t.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")

@@ -38,6 +38,7 @@ from tumblebot.errors import TumblebotError
 from tumblebot.host.link import free_port
 from tumblebot.host.mocap import encode_pose_datagram
 from tumblebot.pi_agent import protocol as P
+from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.evaluation.evaluate import episode_seed
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -372,7 +373,7 @@ def run_twin(out: Path, points: int, per_point: int, radius: float, setpoint: tu
         cmd = [sys.executable, "-m", "tumblebot.cli", "trial", "run", "--out", str(out), "--points", str(points),
                "--per-point", str(per_point), "--radius", str(radius), "--setpoint", f"{setpoint[0]},{setpoint[1]}",
                "--heading", str(heading), "--design", ",".join(map(str, design.as_tuple())), "--seed", str(seed),
-               *(["--gait", policy] if policy == "excite" else ["--policy", policy]), *stack.host_args(),
+               *(["--gait", policy] if policy in GAITS else ["--policy", policy]), *stack.host_args(),
                *(extra or [])]
         code = subprocess.run(cmd, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
         stack.close()  # the world writes how far it fell behind real time as it stops

@@ -92,6 +92,13 @@ def test_that_twin_run_refuses_a_bad_live_view_address_before_starting(tmp_path:
     assert not (tmp_path / "t").exists()
 
 
+@pytest.mark.parametrize("gait", ["excite", "pulse"])
+def test_that_twin_run_refuses_to_check_a_scripted_gait_before_starting(tmp_path: Path, gait: str) -> None:
+    """A scripted gait runs open loop (held-out or identification trials for a calibration):
+    there is no policy to simulate beside it, so ``--check`` is one error line."""
+    run = tb("twin", "run", "--out", str(tmp_path / "t"), "--policy", gait, "--check", timeout=60)
+    assert run.returncode == 2 and f"a scripted gait (--policy {gait}) runs open loop" in run.stderr, run.stderr
+    assert not (tmp_path / "t").exists()
 @pytest.mark.slow
 @pytest.mark.hil
 def test_that_a_replayed_trial_reproduces_the_recording_regression_start_wait_ate_the_recording(
