@@ -230,6 +230,27 @@ def _tally(row: dict[str, Any], k: int) -> str:
     return f"{(ties if k == 0 else agree)}/{n}".ljust(16)
 
 
+def predict(folder: Path, world: Path, fitted: PhysicsProfile, args: argparse.Namespace, k: int) -> dict[str, float]:
+    """The prediction stage of hidden world ``k``: held-out trials through the twin, closed
+    loop (``p_*``) and open loop (``q_*``), against simulation under the fitted profile and ``thesis``."""
+    row: dict[str, float] = {}
+    if args.holdout > 0:
+        twin(folder / "holdout", world, "nav-flat", args.holdout, seed=100 + k)
+        logged = np.array([t["final_error"] for t in json.loads((folder / "holdout" / "index.json").read_text())
+                           ["trials"]])
+        med_fit, p_fit = prediction(folder / "holdout", fitted)
+        med_thesis, p_thesis = prediction(folder / "holdout", THESIS)
+        print(f"  held-out, closed loop (the policy from the same starts): final distance to the setpoint, logged "
+              f"median {np.median(logged):.3f} m; simulated under the fitted profile {med_fit:.3f} m (p = "
+              f"{p_fit:.3f}), under thesis {med_thesis:.3f} m (p = {p_thesis:.3f})")
+        row.update(p_fitted=p_fit, p_thesis=p_thesis)
+    if args.holdout_open > 0:  # open loop in the twin too, so a replay is the same experiment
+        held = folder / f"holdout-{args.holdout_gait}"
+        twin(held, world, args.holdout_gait, args.holdout_open, seed=200 + k)
+        row["q_fitted"], row["q_thesis"] = open_loop(held, fitted, args.holdout_gait)
+    return row
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=15, help="identification trials per hidden world (15)")
@@ -274,20 +295,7 @@ def main() -> int:
         speed = result["parameters"]["free_speed"]
         speed_ok = speed["identifiable"] and abs(speed["value"] - truth.free_speed) <= 0.1 * truth.free_speed
         row: dict[str, Any] = {"world": hidden["name"], "recovery": bool(ok and speed_ok), "minutes": seconds / 60}
-        if args.holdout > 0:
-            twin(folder / "holdout", world, "nav-flat", args.holdout, seed=100 + k)
-            logged = np.array([t["final_error"] for t in json.loads((folder / "holdout" / "index.json").read_text())
-                               ["trials"]])
-            med_fit, p_fit = prediction(folder / "holdout", fitted)
-            med_thesis, p_thesis = prediction(folder / "holdout", THESIS)
-            print(f"  held-out, closed loop (the policy from the same starts): final distance to the setpoint, logged "
-                  f"median {np.median(logged):.3f} m; simulated under the fitted profile {med_fit:.3f} m (p = "
-                  f"{p_fit:.3f}), under thesis {med_thesis:.3f} m (p = {p_thesis:.3f})")
-            row.update(p_fitted=p_fit, p_thesis=p_thesis)
-        if args.holdout_open > 0:  # open loop in the twin too, so a replay is the same experiment
-            held = folder / f"holdout-{args.holdout_gait}"
-            twin(held, world, args.holdout_gait, args.holdout_open, seed=200 + k)
-            row["q_fitted"], row["q_thesis"] = open_loop(held, fitted, args.holdout_gait)
+        row.update(predict(folder, world, fitted, args, k))
         if args.decision_trials > 0:
             row["decision"] = decision(folder, world, args.decision_trials, max(1, args.decision_seeds))
         rows.append(row)
