@@ -205,8 +205,8 @@ def _add_sim_command(sub: Subcommands) -> None:
     p.add_argument("--task", default="nav-flat", help=TASK_CHOICES)
     p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--gait", default="forward",
-                   help="forward, reverse, alternate, pulse, spin, stop, random, or goto or plan (the closed-loop "
-                        "navigation controllers; nav-flat and nav-terrain only)")
+                   help="forward, reverse, alternate, pulse, spin, stop, random, excite, or goto or plan (the "
+                        "closed-loop navigation controllers; nav-flat and nav-terrain only)")
     p.add_argument("--seed", type=seed_type, default=0, help="episode seed (start pose, terrain, noise)")
     add_servo_arguments(p)
     p.add_argument("--randomize", action="store_true",

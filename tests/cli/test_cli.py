@@ -131,3 +131,14 @@ def test_that_the_help_texts_name_every_task_and_no_other() -> None:
     from tumblebot.sim.world.tasks import TASKS
 
     assert tuple(TASKS) == TASK_NAMES
+
+
+def test_that_sim_help_names_every_scripted_gait(capsys: pytest.CaptureFixture[str]) -> None:
+    """The list is written out by hand (the parser must build without numpy on a Pi)."""
+    from tumblebot.sim.control.gaits import GAITS
+
+    with pytest.raises(SystemExit):
+        main(["sim", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name in GAITS:
+        assert name in text, name
