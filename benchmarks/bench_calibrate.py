@@ -33,8 +33,10 @@ and the host, the agent and the calibration are not told it.
    seeds) tie each other, which is as often as any profile can be expected to.
 4. **Cost**: the calibration's wall time on this machine.
 
-It takes about 15 minutes per profile on 2 cores (the twin runs in real time). The
-figures, with date and machine, go into ``docs/physics.md``.
+Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
+runs its 40 trials in real time; the calibration about 5 minutes); the decision stage
+about 10 minutes per 100 trials and seed. Every stage keeps its results in ``--out`` and
+a second run reuses them. The figures, with date and machine, go into ``docs/physics.md``.
 """
 
 from __future__ import annotations
