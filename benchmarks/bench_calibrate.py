@@ -35,7 +35,7 @@ and the host, the agent and the calibration are not told it.
 
 Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
 runs its 40 trials in real time; the calibration about 5 minutes); the decision stage
-about 10 minutes per 100 trials and seed. Every stage keeps its results in ``--out`` and
+about 4 minutes per 100 trials and seed (its two studies). Every stage keeps its results in ``--out`` and
 a second run reuses them. The figures, with date and machine, go into ``docs/physics.md``.
 """
 
