@@ -99,6 +99,8 @@ def test_that_twin_run_refuses_to_check_a_scripted_gait_before_starting(tmp_path
     run = tb("twin", "run", "--out", str(tmp_path / "t"), "--policy", gait, "--check", timeout=60)
     assert run.returncode == 2 and f"a scripted gait (--policy {gait}) runs open loop" in run.stderr, run.stderr
     assert not (tmp_path / "t").exists()
+
+
 @pytest.mark.slow
 @pytest.mark.hil
 def test_that_a_replayed_trial_reproduces_the_recording_regression_start_wait_ate_the_recording(
