@@ -35,8 +35,8 @@ and the host, the agent and the calibration are not told it.
 
 Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
 runs its 40 trials in real time; the calibration about 5 minutes); the decision stage
-about 4 minutes per 100 trials and seed (its two studies). Every stage keeps its results in ``--out`` and
-a second run reuses them. The figures, with date and machine, go into ``docs/physics.md``.
+about 4 minutes per 100 trials and seed (its two studies). Every stage keeps its results
+in ``--out`` and a second run reuses them. The figures, with date and machine, go into ``docs/physics.md``.
 """
 
 from __future__ import annotations
@@ -89,15 +89,15 @@ def ad_p(a: np.ndarray, b: np.ndarray) -> float:
         return float(np.clip(anderson_ksamp([a, b]).pvalue, 0.001, 0.25))
 
 
-def prediction(holdout: Path, profile: PhysicsProfile) -> tuple[float, float]:
+def prediction(holdout: Path, profile: PhysicsProfile) -> tuple[float, float, float]:
     """Closed loop: the logged final distances to the setpoint against pure simulation of
-    the policy from the same starts under ``profile``: (simulated median, p)."""
+    the policy from the same starts under ``profile``: (logged median, simulated median, p)."""
     from tumblebot.host.trial_sets import load_index
     from tumblebot.host.twin import simulate_starts
 
     logged = np.array([t["final_error"] for t in load_index(holdout)["trials"]])
     simulated = np.concatenate(simulate_starts(holdout, physics=profile)["per_trial"])
-    return float(np.median(simulated)), ad_p(logged, simulated)
+    return float(np.median(logged)), float(np.median(simulated)), ad_p(logged, simulated)
 
 
 def replay_prediction(holdout: Path, profile: PhysicsProfile, seeds: int = 8) -> tuple[float, float, float]:
@@ -238,12 +238,10 @@ def predict(folder: Path, world: Path, fitted: PhysicsProfile, args: argparse.Na
     row: dict[str, float] = {}
     if args.holdout > 0:
         twin(folder / "holdout", world, "nav-flat", args.holdout, seed=100 + k)
-        logged = np.array([t["final_error"] for t in json.loads((folder / "holdout" / "index.json").read_text())
-                           ["trials"]])
-        med_fit, p_fit = prediction(folder / "holdout", fitted)
-        med_thesis, p_thesis = prediction(folder / "holdout", THESIS)
+        log_med, med_fit, p_fit = prediction(folder / "holdout", fitted)
+        _, med_thesis, p_thesis = prediction(folder / "holdout", THESIS)
         print(f"  held-out, closed loop (the policy from the same starts): final distance to the setpoint, logged "
-              f"median {np.median(logged):.3f} m; simulated under the fitted profile {med_fit:.3f} m (p = "
+              f"median {log_med:.3f} m; simulated under the fitted profile {med_fit:.3f} m (p = "
               f"{p_fit:.3f}), under thesis {med_thesis:.3f} m (p = {p_thesis:.3f})")
         row.update(p_fitted=p_fit, p_thesis=p_thesis)
     if args.holdout_open > 0:  # open loop in the twin too, so a replay is the same experiment

@@ -75,6 +75,8 @@ def teacher_name(layout: str) -> str:
     """The hand-written controller a layout's first goto setting is, by its ``--gait`` name:
     ``plan`` for ``dual-plan`` (whose gotos take plan's estimates), ``goto`` otherwise."""
     return "plan" if GOTO_SETTINGS.get(layout, (None,))[0] is PLAN_GOTO else "goto"
+
+
 EPISODE_STEPS = 20  #: the episode the ``steps_left`` input counts down (thesis: 20 steps of 1 s)
 ACTION_LAYOUT: dict[str, Any] = {"motors": ["right", "left"], "values": {"0": "reverse", "1": "stop", "2": "forward"}}
 
