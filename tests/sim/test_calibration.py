@@ -37,10 +37,27 @@ def test_step_features_of_a_known_track() -> None:
     x = np.clip(t, 0.0, 1.0) * 0.2  # drives 0.2 m in the first second, evenly
     heading = np.where(t < 1.0, 0.0, np.clip(t - 1.0, 0.0, 1.0) * 0.5)  # then turns 0.5 rad
     f = cal.step_features(trace, cal.Track(t, x, np.zeros_like(t), heading))
-    assert [cal.CLASSES[int(c)] for c in f[:, 0]] == ["drive", "spin", "stop"]
+    assert [cal.CLASSES[int(c)] for c in f[:, 0]] == ["start", "spin", "stop"]  # the first drive is from rest
     assert f[0, 1] == pytest.approx(0.2) and f[0, 3] == pytest.approx(0.5, abs=0.02)
     assert f[1, 2] == pytest.approx(0.5) and f[1, 1] == pytest.approx(0.0)
     assert f[2, 3] == 1.0  # never got under way: the step's length
+
+
+def test_a_drive_is_a_start_only_from_rest() -> None:
+    commands = ((0.0, 1, 1), (1.0, 1, 1), (2.0, 0, 0), (3.0, -1, -1), (4.0, 1, -1), (5.0, 1, 1))
+    trace = cal.Trace("t", XI3, (0.0, 0.0, 0.0), commands, 6.0)
+    t = np.linspace(0.0, 6.0, 601)
+    f = cal.step_features(trace, cal.Track(t, 0.1 * t, np.zeros_like(t), np.zeros_like(t)))
+    assert [cal.CLASSES[int(c)] for c in f[:, 0]] == ["start", "drive", "stop", "start", "spin", "drive"]
+
+
+def test_the_identification_run_starts_drives_from_rest_often_enough_to_fit_them() -> None:
+    trace = cal.Trace("t", XI3, (0.0, 0.0, 0.0), EXCITE, 20.0)
+    t = np.linspace(0.0, 20.0, 2001)
+    f = cal.step_features(trace, cal.Track(t, 0.1 * t, np.zeros_like(t), np.zeros_like(t)))
+    kinds = [cal.CLASSES[int(c)] for c in f[:, 0]]
+    for kind in cal.CLASSES:  # 3 trials already give every kind of command its statistics
+        assert 3 * kinds.count(kind) >= cal.MIN_STEPS, kind
 
 
 def test_a_trace_with_bad_commands_is_refused() -> None:
@@ -72,6 +89,15 @@ def test_latency_moves_its_mean_and_keeps_the_spread() -> None:
     assert p.apply(THESIS, 0.005).latency == pytest.approx((0.0, 0.01))
 
 
+def test_a_prior_value_ruled_out_together_with_the_others_gives_way_to_the_posterior_median() -> None:
+    kept = {"value": 0.582, "low": 0.19, "high": 1.5, "identifiable": False, "prior": 0.582, "kept_prior": True,
+            "posterior": [0.39, 0.47, 0.64], "effect": 40.0, "why": "kept"}
+    moved = cal._ruled_out_jointly(kept, joint=15.0, improved=2.0)
+    assert moved["value"] == 0.47 and (moved["low"], moved["high"]) == (0.39, 0.64)
+    assert not moved["kept_prior"] and not moved["identifiable"]
+    assert "together" in moved["why"] and "not a confident value" in moved["why"]
+
+
 @pytest.mark.slow
 def test_a_fit_finds_a_hidden_free_speed_and_keeps_what_it_cannot_see(tmp_path: Path) -> None:
     """The fit, end to end in one process, on logs from a world faster than the prior."""
@@ -96,8 +122,9 @@ def test_a_fit_finds_a_hidden_free_speed_and_keeps_what_it_cannot_see(tmp_path: 
             assert p["why"], name
             if p["kept_prior"]:  # what the logs cannot see, or agree with, stays the prior's
                 assert p["value"] == p["prior"], name
-            else:  # the logs rule the prior out: the posterior's median, with its wide interval
-                assert p["low"] <= p["value"] <= p["high"] and not p["low"] <= p["prior"] <= p["high"], name
+            else:  # the logs rule the prior out, alone or with the other kept values: the posterior's median
+                assert p["low"] <= p["value"] <= p["high"], name
+                assert not p["low"] <= p["prior"] <= p["high"] or "together" in p["why"], name
     assert result.profile.free_speed == speed["value"]
     assert result.fit["misfit_fitted"] < result.fit["misfit_prior"]
     # everything simulated is in the cache: the same fit again simulates nothing
