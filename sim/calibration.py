@@ -614,12 +614,15 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
     # servo's stall torque and the floor's friction both set how far a spin goes).
     visible = [k for k, v in parameters.items() if v["kept_prior"] and v["effect"] >= MIN_EFFECT]
     joint = misfit(fitted_stats, noise2)
+    checked: dict[str, Any] | None = None  #: the check of the kept values together, when it ran
     if visible and joint > MAX_MISFIT:
         say("checking the fit: the kept prior values together misfit the logs; trying the posterior's medians")
         medians = {k: parameters[k]["posterior"][1] for k in visible}
         candidate = profile_at(profile, medians, name)
         candidate_stats, candidate_runs = fit.replicate(candidate, 50_000_000)
         improved = misfit(candidate_stats, noise2)
+        checked = {"parameters": visible, "misfit_kept": joint, "misfit_medians": improved,
+                   "adopted": improved < joint}
         if improved < joint:
             for k in visible:
                 parameters[k] = _ruled_out_jointly(parameters[k], joint, improved)
@@ -631,7 +634,8 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
                "statistics": {n: {"logged": float(fit.s_obs[i]), "prior": float(prior_stats[:, i].mean()),
                                   "fitted": float(fitted_stats[:, i].mean()), "noise_sd": float(math.sqrt(noise2[i]))}
                               for i, n in enumerate(fit.names)},
-               "misfit_prior": misfit(prior_stats, noise1), "misfit_fitted": misfit(fitted_stats, noise2)}
+               "misfit_prior": misfit(prior_stats, noise1), "misfit_fitted": misfit(fitted_stats, noise2),
+               "kept_values_checked": checked}
     features = {"logged": logged, "prior": [f for run in prior_runs for f in run],
                 "fitted": [f for run in fitted_runs for f in run]}
     return Calibration(profile, prior, parameters, summary, features)

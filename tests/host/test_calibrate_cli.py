@@ -91,7 +91,8 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
         p = result["parameters"][name]
         assert not p["identifiable"] or p["low"] <= getattr(HIDDEN, name) <= p["high"], (name, p)
     speed = result["parameters"]["free_speed"]
-    assert result["fit"]["simulated_sets"] == 3 * 8 + 2 * MIN_DESIGN_POINTS - kept  # nothing twice
+    replicated = 4 if result["fit"]["kept_values_checked"] else 3  # prior, centre, fitted (and medians)
+    assert result["fit"]["simulated_sets"] == replicated * 8 + 2 * MIN_DESIGN_POINTS - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]
     assert (tmp_path / "calibration.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
