@@ -55,7 +55,8 @@ MIN_EFFECT = 3.0  #: a parameter whose range moves no statistic this many noise 
 MAX_REL_HALF_WIDTH = 0.25  #: an identified parameter's 90 % interval lies within ±25 % of its value
 STILL = 0.005  #: m: a step that moves less than this never "gets under way"
 #: a profile whose statistics lie further than this from the logged ones (mean squared, in
-#: noise SDs) misfits them: the kept prior values are checked against the posterior's medians
+#: noise SDs) misfits them: the kept prior values are checked against the posterior's
+#: medians, which replace them when they halve the misfit
 MAX_MISFIT = 4.0
 
 #: both legs one way; opposite ways; one leg; none; and a drive from rest (the trial's first
@@ -622,8 +623,8 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
         candidate_stats, candidate_runs = fit.replicate(candidate, 50_000_000)
         improved = misfit(candidate_stats, noise2)
         checked = {"parameters": visible, "misfit_kept": joint, "misfit_medians": improved,
-                   "adopted": improved < joint}
-        if improved < joint:
+                   "adopted": improved <= joint / 2}
+        if checked["adopted"]:  # clearly better: a misfit from 8 replicates is itself noisy
             for k in visible:
                 parameters[k] = _ruled_out_jointly(parameters[k], joint, improved)
             profile, fitted_stats, fitted_runs = candidate, candidate_stats, candidate_runs
