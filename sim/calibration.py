@@ -6,8 +6,8 @@ command with the moment it left (a :class:`Trace`). :func:`replay` runs a trace 
 candidate profile, open loop, and records the body's planar pose (a :class:`Track`), the
 same kind of record the motion capture made. Both are cut into the trace's steps (one
 command each) and summarised by :func:`statistics`: per kind of command (drive, spin,
-one leg, stop) the mean distance and turn of a step, how quickly a drive step gets under
-way, and how much drive steps differ from each other.
+one leg, stop, and a drive from rest, ``start``) the mean distance and turn of a step, how
+quickly a drive step gets under way, and how much drive steps differ from each other.
 
 :func:`calibrate` fits the profile by simulation-based inference with a quadratic
 emulator (a response surface), in two rounds:
@@ -29,7 +29,10 @@ effect is at least :data:`MIN_EFFECT` and its interval lies within ±25 % of its
 Any other parameter is reported as not identifiable and keeps the prior's value, unless
 the logs rule that value out (it lies outside the parameter's 90 % posterior interval):
 then the profile takes the posterior's median, so that it reproduces the logged motion,
-and the report says that the value is not a confident one.
+and the report says that the value is not a confident one. The kept values are checked
+together too, by replicate simulations: when the profile misfits the logged statistics by
+more than :data:`MAX_MISFIT` and the posterior's medians of the kept values that show in
+the logs at least halve that, the profile takes those medians, with the same caveat.
 """
 
 from __future__ import annotations
