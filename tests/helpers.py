@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Mapping
@@ -14,3 +15,10 @@ def tb(*args: str, timeout: float = 1200, env: Mapping[str, str] | None = None) 
     return subprocess.run([sys.executable, "-m", "tumblebot.cli", *args], capture_output=True, text=True,
                           timeout=timeout, check=False, stdin=subprocess.DEVNULL,
                           env=None if env is None else {**os.environ, **env})
+
+
+def interruptible() -> None:
+    """``preexec_fn`` for a child a test will Ctrl-C: SIGINT as in a terminal. A runner that
+    starts the tests in the background (``nohup``, ``&``) has SIGINT ignored, and a child
+    inherits that, so the Ctrl-C the test sends would never arrive."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -13,6 +13,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+from tests.helpers import interruptible
+
 SWALLOWING_MODULE = textwrap.dedent("""
     import os, signal, time
     try:  # a library that guards its import with a catch-all, as some do
@@ -29,7 +31,7 @@ def _run(tmp_path: Path, body: str) -> subprocess.CompletedProcess[str]:
     # Ctrl-C at its default in the child: a background job of a non-interactive shell (as CI
     # may run the suite) would hand it down ignored, and then nothing here could fail.
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
-                          stdin=subprocess.DEVNULL, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                          stdin=subprocess.DEVNULL, preexec_fn=interruptible)
 
 
 def test_that_a_ctrl_c_swallowed_by_an_import_is_lost_without_the_latch(tmp_path: Path) -> None:

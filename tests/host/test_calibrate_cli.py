@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.calibration_logs import write_set
-from tests.helpers import tb
+from tests.helpers import interruptible, tb
 from tumblebot.host.calibrate import cache_path
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -68,7 +68,7 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
     out = tmp_path / "lab.json"
     cmd = [sys.executable, "-m", "tumblebot.cli", "calibrate", str(logs), "-o", str(out), *SMALL, "--json"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            stdin=subprocess.DEVNULL)
+                            stdin=subprocess.DEVNULL, preexec_fn=interruptible)
     deadline = time.monotonic() + 300
     while not (cache_path(out).is_file() and len(cache_path(out).read_text().splitlines()) >= 5):
         assert proc.poll() is None and time.monotonic() < deadline, "no simulation was cached"

@@ -15,7 +15,7 @@ import numpy as np
 import optuna
 import pytest
 
-from tests.helpers import tb
+from tests.helpers import interruptible, tb
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -258,7 +258,8 @@ def test_that_ctrl_c_stops_cleanly_and_the_same_command_resumes(tmp_path: Path) 
     db = tmp_path / "c.db"
     cmd = [sys.executable, "-m", "tumblebot.cli", "optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "8",
            "--batch", "24", "--storage", f"sqlite:///{db}", "--study", "c", "--quiet"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+                            preexec_fn=interruptible)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:  # wait until a trial is under way
         time.sleep(0.5)
@@ -285,7 +286,7 @@ def _interrupt_at(cmd: list[str], delay: float) -> subprocess.CompletedProcess[s
     """Start ``cmd`` with Ctrl-C at its default (a background job of a non-interactive shell
     would inherit it ignored), send SIGINT ``delay`` s after start, wait for it to end."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=interruptible)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
     try:

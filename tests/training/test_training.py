@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import interruptible
 from tumblebot.cli import main
 from tumblebot.sim.control.policy import OBS_LAYOUT, OnnxPolicy, PolicyError
 from tumblebot.sim.evaluation.evaluate import Driver, evaluate
@@ -270,7 +271,8 @@ def test_that_ctrl_c_saves_a_checkpoint_and_exits_cleanly_regression_worker_hang
     config.write_text(json.dumps({"n_steps": 64, "batch_size": 64, "n_epochs": 1, "net_arch": [8]}))
     proc = subprocess.Popen([sys.executable, "-m", "tumblebot.cli", "train", "--task", "distance-flat", "--steps",
                              "100000", "--envs", "2", "--config", str(config), "--run-dir", str(run)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=interruptible)
     try:
         deadline = time.monotonic() + 120
         while not (run / "episodes.csv").exists() or len((run / "episodes.csv").read_text().splitlines()) < 3:
