@@ -671,7 +671,8 @@ def plot(cal: Calibration, path: Path) -> None:
                         color=colour, alpha=0.35 if key == "logged" else 1.0, lw=1.6, label=text)
             ax.set_xlabel(label, fontsize=8)
             if row == 0:
-                ax.set_title(f"{CLASSES[c]} steps ({int((logged[:, 0] == c).sum())} logged)", fontsize=9)
+                kind = "drives from rest" if CLASSES[c] == "start" else f"{CLASSES[c]} steps"
+                ax.set_title(f"{kind} ({int((logged[:, 0] == c).sum())} logged)", fontsize=9)
             ax.tick_params(labelsize=7)
     axes[0][0].legend(fontsize=7)
     fig.suptitle(f"calibration: {cal.fit['trials']} trials; misfit (mean squared, in noise SDs) "
