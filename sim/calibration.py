@@ -188,7 +188,7 @@ def step_features(trace: Trace, track: Track) -> np.ndarray:
         else:
             t50 = float(track.t[i0 + int(np.argmax(away >= 0.5 * away.max()))] - track.t[i0])
         kind = command_class(right, left)
-        if kind == "drive" and (k == 0 or trace.commands[k - 1][1:] == (0, 0)):
+        if kind == "drive" and (k == 0 or command_class(*trace.commands[k - 1][1:]) == "stop"):
             kind = "start"
         rows.append((CLASSES.index(kind), math.hypot(dx, dy), turn, min(t50, length)))
     return np.array(rows, dtype=float)
