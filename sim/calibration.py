@@ -71,6 +71,10 @@ FEATURES_VERSION = 2  #: bumped when step features change: a cache of older ones
 #: a full quadratic in the six fitted parameters has 1 + 6 + 21 = 28 coefficients: a round
 #: needs about twice as many simulated points to fit it and to measure its own error
 MIN_DESIGN_POINTS = 64
+#: the rounds after the first: each zooms to the previous posterior's (tail, 1 - tail)
+#: quantiles, padded by that share of their width. One such round: a third, tighter one
+#: ((0.01, 0.1)) fits the logged statistics better and the truth worse (docs/physics.md)
+ZOOMS: tuple[tuple[float, float], ...] = ((0.0005, 0.25),)
 
 
 class CalibrationError(SimError):
@@ -387,8 +391,10 @@ class Settings:
         if self.design_points < MIN_DESIGN_POINTS or self.replicates < 3:
             raise CalibrationError(f"a calibration needs at least {MIN_DESIGN_POINTS} design points and 3 replicates")
 
-    def rounds(self) -> tuple[int, int]:
-        return self.design_points, max(MIN_DESIGN_POINTS, self.design_points // 2)
+    def rounds(self) -> tuple[int, ...]:
+        """How many Sobol points each round simulates."""
+        later = max(MIN_DESIGN_POINTS, self.design_points // 2)
+        return (self.design_points,) + (later,) * len(ZOOMS)
 
 
 def _quadratic(u: np.ndarray) -> np.ndarray:
@@ -450,7 +456,7 @@ Box = list[tuple[float, float]]
 
 
 class _Fit:
-    """The two rounds of :func:`calibrate` over one set of logged statistics."""
+    """The rounds of :func:`calibrate` over one set of logged statistics."""
 
     def __init__(self, observed: dict[str, float], prior: PhysicsProfile, simulator: Simulator,
                  settings: Settings) -> None:
@@ -509,24 +515,31 @@ class _Fit:
             out[p.name] = (float(delta.max()), self.names[int(delta.argmax())])
         return out
 
-    def zoom(self, values: np.ndarray, w: np.ndarray) -> Box:
-        """The part of the prior box where a posterior lies, padded."""
+    def zoom(self, values: np.ndarray, w: np.ndarray, tail: float, pad: float) -> Box:
+        """The part of the prior box where a posterior lies: its ``tail`` and ``1 - tail``
+        quantiles, padded by ``pad`` of that width (in unit coordinates) and 0.02."""
         box = []
         for j, p in enumerate(self.params):
-            lo, hi = _weighted_quantiles(values[:, j], w, [0.0005, 0.9995])
+            lo, hi = _weighted_quantiles(values[:, j], w, [tail, 1.0 - tail])
             ulo, uhi = (float(v) for v in p.to_unit(np.array([lo, hi]), self.box1[j]))
-            pad = 0.25 * (uhi - ulo) + 0.02
-            ulo, uhi = max(0.0, ulo - pad), min(1.0, uhi + pad)
+            margin = pad * (uhi - ulo) + 0.02
+            ulo, uhi = max(0.0, ulo - margin), min(1.0, uhi + margin)
             box.append((float(p.from_unit(np.array(ulo), self.box1[j])),
                         float(p.from_unit(np.array(uhi), self.box1[j]))))
         return box
 
-    def inside(self, u1: np.ndarray, box2: Box) -> tuple[np.ndarray, np.ndarray]:
-        """Round 1's points that lie in ``box2``: their mask, and their unit coordinates there."""
-        values = np.column_stack([p.from_unit(u1[:, j], self.box1[j]) for j, p in enumerate(self.params)])
-        mask = np.all((values >= [b[0] for b in box2]) & (values <= [b[1] for b in box2]), axis=1)
-        u = np.column_stack([p.to_unit(values[mask, j], box2[j]) for j, p in enumerate(self.params)])
-        return mask, u.reshape(-1, len(self.params))
+    def values(self, u: np.ndarray, box: Box) -> np.ndarray:
+        """Unit coordinates of ``box`` as parameter values."""
+        return np.column_stack([p.from_unit(u[:, j], box[j]) for j, p in enumerate(self.params)])
+
+    def units(self, values: np.ndarray, box: Box) -> np.ndarray:
+        """Parameter values as unit coordinates of ``box``."""
+        u = np.column_stack([p.to_unit(values[:, j], box[j]) for j, p in enumerate(self.params)])
+        return u.reshape(-1, len(self.params))
+
+    def inside(self, values: np.ndarray, box: Box) -> np.ndarray:
+        """Which of the points ``values`` lie in ``box``."""
+        return np.asarray(np.all((values >= [b[0] for b in box]) & (values <= [b[1] for b in box]), axis=1))
 
     def median(self, values: np.ndarray, w: np.ndarray) -> dict[str, float]:
         return {p.name: _weighted_quantiles(values[:, j], w, [0.5])[0] for j, p in enumerate(self.params)}
@@ -585,25 +598,32 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
         raise CalibrationError(f"the logs have fewer than {MIN_STEPS} steps of every kind of command: nothing to fit "
                                "(run the identification trials, tumblebot bench excite)")
     fit = _Fit(observed, prior, simulator, settings)
-    n1, n2 = settings.rounds()
-    say(f"round 1 of 2: the prior box, {n1} simulated trial sets and {settings.replicates} replicates")
+    sizes = settings.rounds()
+    say(f"round 1 of {len(sizes)}: the prior box, {sizes[0]} simulated trial sets and {settings.replicates} replicates")
     prior_stats, prior_runs = fit.replicate(prior, 10_000_000)
-    noise1 = np.var(prior_stats, axis=0, ddof=1) + 1e-12
-    u1, y1 = fit.design(n1, fit.box1, settings.seed, 0)
-    emu1 = Emulator.fit(u1, y1)
-    values1, w1 = fit.posterior(emu1, noise1, fit.box1, settings.seed + 1)
-    centre = fit.median(values1, w1)
+    noise = noise1 = np.var(prior_stats, axis=0, ddof=1) + 1e-12
+    u1, y = fit.design(sizes[0], fit.box1, settings.seed, 0)
+    points = fit.values(u1, fit.box1)  # every simulated design point so far, as parameter values
+    emulator = Emulator.fit(u1, y)
+    values, w = fit.posterior(emulator, noise, fit.box1, settings.seed + 1)
+    centre = fit.median(values, w)
     centre_u = np.array([float(p.to_unit(np.array(centre[p.name]), fit.box1[j])) for j, p in enumerate(fit.params)])
-    effects = fit.effects(emu1, noise1, centre_u)
+    effects = fit.effects(emulator, noise, centre_u)
 
-    box2 = fit.zoom(values1, w1)
-    say(f"round 2 of 2: the posterior's box, {n2} simulated trial sets and {settings.replicates} replicates")
-    centre_stats, _ = fit.replicate(profile_at(prior, centre), 20_000_000)
-    noise2 = np.var(centre_stats, axis=0, ddof=1) + 1e-12
-    u2, y2 = fit.design(n2, box2, settings.seed + 2, 30_000_000)
-    mask, u_old = fit.inside(u1, box2)  # round 1's points inside the new box help too
-    emu2 = Emulator.fit(np.vstack([u2, u_old]), np.vstack([y2, y1[mask]]))
-    values2, w2 = fit.posterior(emu2, noise2, box2, settings.seed + 3)
+    for r, (size, (tail, pad)) in enumerate(zip(sizes[1:], ZOOMS, strict=False), start=2):
+        box = fit.zoom(values, w, tail, pad)
+        say(f"round {r} of {len(sizes)}: the posterior's box, {size} simulated trial sets and "
+            f"{settings.replicates} replicates")
+        # seed bases: every simulation its own seed, and round 2's those of a two-round fit (its cache holds)
+        base = 20_000_000 if r == 2 else 100_000_000 * r
+        centre_stats, _ = fit.replicate(profile_at(prior, fit.median(values, w)), base)
+        noise = np.var(centre_stats, axis=0, ddof=1) + 1e-12
+        u_new, y_new = fit.design(size, box, settings.seed + 2 * (r - 1), 30_000_000 * (r - 1))
+        mask = fit.inside(points, box)  # earlier rounds' points inside the new box help too
+        emulator = Emulator.fit(np.vstack([u_new, fit.units(points[mask], box)]), np.vstack([y_new, y[mask]]))
+        points, y = np.vstack([points, fit.values(u_new, box)]), np.vstack([y, y_new])
+        values, w = fit.posterior(emulator, noise, box, settings.seed + 2 * r - 1)
+    noise2, w2, values2 = noise, w, values
 
     parameters = {p.name: _estimate(p, prior, _weighted_quantiles(values2[:, j], w2, [0.05, 0.5, 0.95]),
                                     effects[p.name], fit.box1[j]) for j, p in enumerate(fit.params)}

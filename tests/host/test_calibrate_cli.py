@@ -17,7 +17,7 @@ import pytest
 from tests.calibration_logs import write_set
 from tests.helpers import interruptible, tb
 from tumblebot.host.calibrate import cache_path
-from tumblebot.sim.calibration import MIN_DESIGN_POINTS
+from tumblebot.sim.calibration import MIN_DESIGN_POINTS, Settings
 from tumblebot.sim.world.physics import PhysicsProfile
 
 HIDDEN = PhysicsProfile.from_json({"name": "hidden", "free_speed": 4.4, "stall_torque": 0.9, "friction": 0.6})
@@ -91,8 +91,10 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
         p = result["parameters"][name]
         assert not p["identifiable"] or p["low"] <= getattr(HIDDEN, name) <= p["high"], (name, p)
     speed = result["parameters"]["free_speed"]
-    replicated = 4 if result["fit"]["kept_values_checked"] else 3  # prior, centre, fitted (and medians)
-    assert result["fit"]["simulated_sets"] == replicated * 8 + 2 * MIN_DESIGN_POINTS - kept  # nothing twice
+    rounds = Settings(design_points=MIN_DESIGN_POINTS).rounds()
+    # the prior, each later round's centre, the fitted profile (and the posterior's medians)
+    replicated = len(rounds) + 1 + (1 if result["fit"]["kept_values_checked"] else 0)
+    assert result["fit"]["simulated_sets"] == replicated * 8 + sum(rounds) - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]
     assert (tmp_path / "calibration.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
