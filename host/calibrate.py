@@ -135,9 +135,14 @@ def run_calibration(trials: list[LoggedTrial], folders: list[Path], output: Path
     sim = Simulator([t.trace for t in trials], workers, cache_path(output), on_done=bar.update)
     if sim.done:
         say(f"resuming: {len(sim.done)} simulated trial sets from {cache_path(output)}")
+
+    def more(n: int) -> None:
+        bar.total = (bar.total or 0) + n
+        bar.refresh()
+
     try:
         result = calibrate([t.trace for t in trials], [t.track for t in trials], prior, output.stem, sim, settings,
-                           say=lambda line: bar.write(line) if progress else say(line))
+                           say=lambda line: bar.write(line) if progress else say(line), more=more)
     finally:
         sim.close()
         bar.close()

@@ -31,8 +31,10 @@ the logs rule that value out (it lies outside the parameter's 90 % posterior int
 then the profile takes the posterior's median, so that it reproduces the logged motion,
 and the report says that the value is not a confident one. The kept values are checked
 together too, by replicate simulations: when the profile misfits the logged statistics by
-more than :data:`MAX_MISFIT` and the posterior's medians of the kept values that show in
-the logs at least halve that, the profile takes those medians, with the same caveat.
+more than :data:`MAX_MISFIT`, the kept values that show in the logs are searched together
+inside their 90 % intervals (Optuna's TPE, every candidate simulated; the emulator is too
+coarse to rank points that close), and when the best values found lower the misfit by more
+than :data:`MIN_IMPROVEMENT` on fresh replicates, the profile takes them, with the same caveat.
 """
 
 from __future__ import annotations
@@ -58,9 +60,10 @@ MIN_EFFECT = 3.0  #: a parameter whose range moves no statistic this many noise 
 MAX_REL_HALF_WIDTH = 0.25  #: an identified parameter's 90 % interval lies within ±25 % of its value
 STILL = 0.005  #: m: a step that moves less than this never "gets under way"
 #: a profile whose statistics lie further than this from the logged ones (mean squared, in
-#: noise SDs) misfits them: the kept prior values are checked against the posterior's
-#: medians, which replace them when they halve the misfit
+#: noise SDs) misfits them: the kept prior values are searched together in their intervals,
+#: and the values found replace them when they lower the misfit by more than MIN_IMPROVEMENT
 MAX_MISFIT = 4.0
+MIN_IMPROVEMENT = 1.0
 
 #: both legs one way; opposite ways; one leg; none; and a drive from rest (the trial's first
 #: step, or after a stop), which a stopped servo's hold and the stall torque set apart
@@ -385,16 +388,24 @@ class Settings:
     design_points: int = 128  #: Sobol points of round 1 (round 2 has half as many)
     replicates: int = 8  #: replicate simulations that measure run-to-run noise
     posterior_samples: int = 1 << 15
+    search_trials: int = 24  #: candidates of the kept values' joint search (when it runs)
+    search_replicates: int = 3  #: simulations of each, with the same seeds for every candidate
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.design_points < MIN_DESIGN_POINTS or self.replicates < 3:
             raise CalibrationError(f"a calibration needs at least {MIN_DESIGN_POINTS} design points and 3 replicates")
+        if self.search_trials < 2 or self.search_replicates < 1:
+            raise CalibrationError("the kept values' search needs at least 2 trials and 1 replicate")
 
     def rounds(self) -> tuple[int, ...]:
         """How many Sobol points each round simulates."""
         later = max(MIN_DESIGN_POINTS, self.design_points // 2)
         return (self.design_points,) + (later,) * len(ZOOMS)
+
+    def search_simulations(self) -> int:
+        """Simulated trial sets of the kept values' joint check, when it runs."""
+        return self.search_trials * self.search_replicates + self.replicates
 
 
 def _quadratic(u: np.ndarray) -> np.ndarray:
@@ -541,6 +552,10 @@ class _Fit:
         """Which of the points ``values`` lie in ``box``."""
         return np.asarray(np.all((values >= [b[0] for b in box]) & (values <= [b[1] for b in box]), axis=1))
 
+    def misfit(self, stats: np.ndarray, noise: np.ndarray) -> float:
+        """How far replicate runs' mean statistics lie from the logged ones: mean squared, in noise SDs."""
+        return float((((stats.mean(axis=0) - self.s_obs) ** 2) / noise).mean())
+
     def median(self, values: np.ndarray, w: np.ndarray) -> dict[str, float]:
         return {p.name: _weighted_quantiles(values[:, j], w, [0.5])[0] for j, p in enumerate(self.params)}
 
@@ -575,22 +590,76 @@ def _estimate(p: Parameter, prior: PhysicsProfile, quantiles: list[float], effec
             "kept_prior": keep, "posterior": [q05, q50, q95], "effect": size, "most_visible_in": where, "why": why}
 
 
-def _ruled_out_jointly(estimate: dict[str, Any], joint: float, improved: float) -> dict[str, Any]:
+def _ruled_out_jointly(estimate: dict[str, Any], joint: float, improved: float, value: float) -> dict[str, Any]:
     """A not-identifiable parameter whose prior value the logs allow on its own but not
-    together with the other kept values: the profile takes the posterior's median."""
-    q05, q50, q95 = estimate["posterior"]
+    together with the other kept values: the profile takes ``value`` (from its interval,
+    found by :func:`_search_together`)."""
+    q05, _, q95 = estimate["posterior"]
     why = (f"the logs leave it uncertain ({q05:.3g}..{q95:.3g}, wider than ±{MAX_REL_HALF_WIDTH:.0%}), and the "
            f"prior's {estimate['prior']:.3g} together with the other kept prior values misfits them ({joint:.1f} "
-           f"noise SDs² against {improved:.1f} with the posterior's medians): the profile takes the posterior's "
-           "median, which is not a confident value")
-    return {**estimate, "value": q50, "low": q05, "high": q95, "kept_prior": False, "why": why}
+           f"noise SDs² against {improved:.1f} with the values searched together in their intervals): the profile "
+           f"takes {value:.3g}, which is not a confident value")
+    return {**estimate, "value": value, "low": q05, "high": q95, "kept_prior": False, "why": why}
+
+
+SEARCH_BATCH = 4  #: candidates simulated together (the worker pool stays busy)
+
+
+def _search_together(fit: _Fit, names: Sequence[str], parameters: dict[str, dict[str, Any]],
+                     profile: PhysicsProfile, noise: np.ndarray) -> dict[str, float]:
+    """Values of the kept parameters ``names``, searched together inside their 90 %
+    intervals (every other parameter as in ``profile``) for the simulated statistics nearest
+    the logged ones: Optuna's TPE from the posterior's medians and the prior's values, every
+    candidate simulated ``search_replicates`` times with the same seeds (common random
+    numbers, so that candidates differ by their values, not their luck)."""
+    import optuna
+    from optuna.distributions import BaseDistribution, FloatDistribution
+
+    settings = fit.settings
+    space: dict[str, BaseDistribution] = {
+        k: FloatDistribution(parameters[k]["posterior"][0], parameters[k]["posterior"][2]) for k in names}
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=settings.seed, n_startup_trials=8))
+    study.enqueue_trial({k: float(parameters[k]["posterior"][1]) for k in names})
+    study.enqueue_trial({k: float(parameters[k]["value"]) for k in names})
+    for start in range(0, settings.search_trials, SEARCH_BATCH):
+        trials = [study.ask(space) for _ in range(min(SEARCH_BATCH, settings.search_trials - start))]
+        r = settings.search_replicates
+        runs = fit.simulator.run([(profile_at(profile, t.params), 60_000_000 + k) for t in trials for k in range(r)])
+        for i, t in enumerate(trials):
+            stats = np.array([fit.stats_of(f) for f in runs[i * r:(i + 1) * r]])
+            study.tell(t, float((((stats.mean(axis=0) - fit.s_obs) ** 2) / noise).mean()))
+    return {k: float(v) for k, v in study.best_params.items()}
+
+
+def _check_together(fit: _Fit, parameters: dict[str, dict[str, Any]], visible: list[str], profile: PhysicsProfile,
+                    noise: np.ndarray, joint: float
+                    ) -> tuple[dict[str, Any], tuple[PhysicsProfile, np.ndarray, list[list[np.ndarray]]] | None]:
+    """The kept values ``visible`` (which show in the logs), checked together: searched in
+    their intervals (:func:`_search_together`), then simulated on fresh seeds (no luck of
+    the search's own); they replace the kept ones in ``parameters`` when they lower the
+    misfit ``joint`` by more than :data:`MIN_IMPROVEMENT`. Returns the check's record, and
+    the new profile with its replicate runs if adopted."""
+    found = _search_together(fit, visible, parameters, profile, noise)
+    candidate = profile_at(profile, found)
+    stats, runs = fit.replicate(candidate, 50_000_000)
+    improved = fit.misfit(stats, noise)
+    checked = {"parameters": visible, "misfit_kept": joint, "searched": found, "misfit_searched": improved,
+               "adopted": improved < joint - MIN_IMPROVEMENT}
+    if not checked["adopted"]:
+        return checked, None
+    for k in visible:
+        parameters[k] = _ruled_out_jointly(parameters[k], joint, improved, found[k])
+    return checked, (candidate, stats, runs)
 
 
 def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsProfile, name: str,
               simulator: Simulator, settings: Settings | None = None,
-              say: Callable[[str], None] = lambda line: None) -> Calibration:
+              say: Callable[[str], None] = lambda line: None,
+              more: Callable[[int], None] = lambda n: None) -> Calibration:
     """Fit ``prior``'s :data:`PARAMETERS` to the logged ``tracks`` of ``traces`` (see the
-    module docs). ``simulator`` runs (and caches) the simulations."""
+    module docs). ``simulator`` runs (and caches) the simulations; ``more`` is told when a
+    check adds simulations to those of :meth:`Settings.rounds` (a progress bar's total)."""
     settings = settings or Settings()
     logged = [step_features(tr, tk) for tr, tk in zip(traces, tracks, strict=True)]
     observed = statistics(logged)
@@ -631,26 +700,18 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
     say("checking the fit: replicate simulations under the prior and the fitted profile")
     fitted_stats, fitted_runs = fit.replicate(profile, 40_000_000)
 
-    def misfit(stats: np.ndarray, noise: np.ndarray) -> float:
-        return float((((stats.mean(axis=0) - fit.s_obs) ** 2) / noise).mean())
-
+    misfit = fit.misfit
     # Each kept prior value agrees with the logs on its own; together they may not (a
     # servo's stall torque and the floor's friction both set how far a spin goes).
     visible = [k for k, v in parameters.items() if v["kept_prior"] and v["effect"] >= MIN_EFFECT]
     joint = misfit(fitted_stats, noise2)
     checked: dict[str, Any] | None = None  #: the check of the kept values together, when it ran
     if visible and joint > MAX_MISFIT:
-        say("checking the fit: the kept prior values together misfit the logs; trying the posterior's medians")
-        medians = {k: parameters[k]["posterior"][1] for k in visible}
-        candidate = profile_at(profile, medians, name)
-        candidate_stats, candidate_runs = fit.replicate(candidate, 50_000_000)
-        improved = misfit(candidate_stats, noise2)
-        checked = {"parameters": visible, "misfit_kept": joint, "misfit_medians": improved,
-                   "adopted": improved <= joint / 2}
-        if checked["adopted"]:  # clearly better: a misfit from 8 replicates is itself noisy
-            for k in visible:
-                parameters[k] = _ruled_out_jointly(parameters[k], joint, improved)
-            profile, fitted_stats, fitted_runs = candidate, candidate_stats, candidate_runs
+        say("checking the fit: the kept prior values together misfit the logs; searching them together")
+        more(settings.search_simulations())
+        checked, adopted = _check_together(fit, parameters, visible, profile, noise2, joint)
+        if adopted is not None:
+            profile, fitted_stats, fitted_runs = adopted
 
     summary = {"trials": len(traces), "steps": int(sum(len(f) for f in logged)),
                "simulated_sets": simulator.simulated, "effective_samples": float(1.0 / (w2 ** 2).sum()),

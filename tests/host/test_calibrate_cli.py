@@ -91,10 +91,10 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
         p = result["parameters"][name]
         assert not p["identifiable"] or p["low"] <= getattr(HIDDEN, name) <= p["high"], (name, p)
     speed = result["parameters"]["free_speed"]
-    rounds = Settings(design_points=MIN_DESIGN_POINTS).rounds()
-    # the prior, each later round's centre, the fitted profile (and the posterior's medians)
-    replicated = len(rounds) + 1 + (1 if result["fit"]["kept_values_checked"] else 0)
-    assert result["fit"]["simulated_sets"] == replicated * 8 + sum(rounds) - kept  # nothing twice
+    settings = Settings(design_points=MIN_DESIGN_POINTS)
+    searched = settings.search_simulations() if result["fit"]["kept_values_checked"] else 0
+    replicated = len(settings.rounds()) + 1  # the prior, each later round's centre, the fitted profile
+    assert result["fit"]["simulated_sets"] == replicated * 8 + sum(settings.rounds()) + searched - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]
     assert (tmp_path / "calibration.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

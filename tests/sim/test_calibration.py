@@ -89,13 +89,37 @@ def test_latency_moves_its_mean_and_keeps_the_spread() -> None:
     assert p.apply(THESIS, 0.005).latency == pytest.approx((0.0, 0.01))
 
 
-def test_a_prior_value_ruled_out_together_with_the_others_gives_way_to_the_posterior_median() -> None:
+def test_a_prior_value_ruled_out_together_with_the_others_gives_way_to_the_searched_value() -> None:
     kept = {"value": 0.582, "low": 0.19, "high": 1.5, "identifiable": False, "prior": 0.582, "kept_prior": True,
             "posterior": [0.39, 0.47, 0.64], "effect": 40.0, "why": "kept"}
-    moved = cal._ruled_out_jointly(kept, joint=15.0, improved=2.0)
-    assert moved["value"] == 0.47 and (moved["low"], moved["high"]) == (0.39, 0.64)
+    moved = cal._ruled_out_jointly(kept, joint=15.0, improved=2.0, value=0.52)
+    assert moved["value"] == 0.52 and (moved["low"], moved["high"]) == (0.39, 0.64)
     assert not moved["kept_prior"] and not moved["identifiable"]
     assert "together" in moved["why"] and "not a confident value" in moved["why"]
+
+
+def test_the_joint_search_moves_a_kept_friction_toward_the_floor_the_logs_were_made_on(tmp_path: Path) -> None:
+    """Logs of a slippery floor (friction 0.55) and a profile that kept the prior's 0.9:
+    searched in simulation inside its interval, the friction comes out nearer the truth."""
+    from tests.calibration_logs import write_set
+    from tumblebot.host.calibrate import load_trials
+
+    hidden = PhysicsProfile.from_json({"name": "hidden", "friction": 0.55})
+    trials = load_trials([write_set(tmp_path / "set", hidden, trials=3)])
+    traces = [t.trace for t in trials]
+    observed = cal.statistics([cal.step_features(t.trace, t.track) for t in trials])
+    settings = cal.Settings(design_points=cal.MIN_DESIGN_POINTS, replicates=3, search_trials=12, search_replicates=2)
+    sim = cal.Simulator(traces, workers=1)
+    try:
+        fit = cal._Fit(observed, THESIS, sim, settings)
+        noise = np.var([fit.stats_of(f) for f in sim.run([(THESIS, 7 + r) for r in range(4)])], axis=0, ddof=1)
+        kept = {"friction": {"value": 0.9, "posterior": [0.45, 0.8, 1.1]}}
+        found = cal._search_together(fit, ["friction"], kept, THESIS, noise + 1e-12)
+    finally:
+        sim.close()
+    assert set(found) == {"friction"} and 0.45 <= found["friction"] <= 1.1
+    assert abs(found["friction"] - 0.55) < abs(0.9 - 0.55) / 2, found
+    assert sim.simulated == 4 + 12 * 2  # every candidate simulated, with the same seeds
 
 
 @pytest.mark.slow
