@@ -628,7 +628,7 @@ def _search_together(fit: _Fit, names: Sequence[str], parameters: dict[str, dict
         runs = fit.simulator.run([(profile_at(profile, t.params), 60_000_000 + k) for t in trials for k in range(r)])
         for i, t in enumerate(trials):
             stats = np.array([fit.stats_of(f) for f in runs[i * r:(i + 1) * r]])
-            study.tell(t, float((((stats.mean(axis=0) - fit.s_obs) ** 2) / noise).mean()))
+            study.tell(t, fit.misfit(stats, noise))
     return {k: float(v) for k, v in study.best_params.items()}
 
 
