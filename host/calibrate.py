@@ -130,7 +130,7 @@ def run_calibration(trials: list[LoggedTrial], folders: list[Path], output: Path
 
     say(f"{len(trials)} trials, {sum(len(t.trace.commands) for t in trials)} steps, from "
         f"{', '.join(str(f) for f in folders)}")
-    total = settings.replicates * (len(settings.rounds()) + 1) + sum(settings.rounds())
+    total = settings.simulations()
     bar = tqdm(total=total, unit="set", desc="calibrate", dynamic_ncols=True, mininterval=1.0, disable=not progress)
     sim = Simulator([t.trace for t in trials], workers, cache_path(output), on_done=bar.update)
     if sim.done:

@@ -403,6 +403,10 @@ class Settings:
         later = max(MIN_DESIGN_POINTS, self.design_points // 2)
         return (self.design_points,) + (later,) * len(ZOOMS)
 
+    def simulations(self) -> int:
+        """Simulated trial sets of the rounds and their replicates, the prior's and the fitted profile's."""
+        return self.replicates * (len(self.rounds()) + 1) + sum(self.rounds())
+
     def search_simulations(self) -> int:
         """Simulated trial sets of the kept values' joint check, when it runs."""
         return self.search_trials * self.search_replicates + self.replicates
@@ -512,7 +516,7 @@ class _Fit:
         var = noise_var + np.maximum(res - noise_var, 0.0) + res * _quadratic(u[:1]).shape[1] / emulator.points
         loglik = -0.5 * (((self.s_obs - emulator.predict(u)) ** 2) / var).sum(axis=1)
         w = np.exp(loglik - loglik.max())
-        values = np.column_stack([p.from_unit(u[:, j], box[j]) for j, p in enumerate(self.params)])
+        values = self.values(u, box)
         return values, w / w.sum()
 
     def effects(self, emulator: Emulator, noise_var: np.ndarray, centre: np.ndarray) -> dict[str, tuple[float, str]]:
@@ -676,7 +680,7 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
     emulator = Emulator.fit(u1, y)
     values, w = fit.posterior(emulator, noise, fit.box1, settings.seed + 1)
     centre = fit.median(values, w)
-    centre_u = np.array([float(p.to_unit(np.array(centre[p.name]), fit.box1[j])) for j, p in enumerate(fit.params)])
+    centre_u = fit.units(np.array([[centre[p.name] for p in fit.params]]), fit.box1)[0]
     effects = fit.effects(emulator, noise, centre_u)
 
     for r, (size, (tail, pad)) in enumerate(zip(sizes[1:], ZOOMS, strict=False), start=2):
@@ -692,9 +696,8 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
         emulator = Emulator.fit(np.vstack([u_new, fit.units(points[mask], box)]), np.vstack([y_new, y[mask]]))
         points, y = np.vstack([points, fit.values(u_new, box)]), np.vstack([y, y_new])
         values, w = fit.posterior(emulator, noise, box, settings.seed + 2 * r - 1)
-    noise2, w2, values2 = noise, w, values
 
-    parameters = {p.name: _estimate(p, prior, _weighted_quantiles(values2[:, j], w2, [0.05, 0.5, 0.95]),
+    parameters = {p.name: _estimate(p, prior, _weighted_quantiles(values[:, j], w, [0.05, 0.5, 0.95]),
                                     effects[p.name], fit.box1[j]) for j, p in enumerate(fit.params)}
     profile = profile_at(prior, {k: v["value"] for k, v in parameters.items() if not v["kept_prior"]}, name)
     say("checking the fit: replicate simulations under the prior and the fitted profile")
@@ -704,22 +707,22 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
     # Each kept prior value agrees with the logs on its own; together they may not (a
     # servo's stall torque and the floor's friction both set how far a spin goes).
     visible = [k for k, v in parameters.items() if v["kept_prior"] and v["effect"] >= MIN_EFFECT]
-    joint = misfit(fitted_stats, noise2)
+    joint = misfit(fitted_stats, noise)
     checked: dict[str, Any] | None = None  #: the check of the kept values together, when it ran
     if visible and joint > MAX_MISFIT:
         say("checking the fit: the kept prior values together misfit the logs; searching them together")
         more(settings.search_simulations())
-        checked, adopted = _check_together(fit, parameters, visible, profile, noise2, joint)
+        checked, adopted = _check_together(fit, parameters, visible, profile, noise, joint)
         if adopted is not None:
             profile, fitted_stats, fitted_runs = adopted
 
     summary = {"trials": len(traces), "steps": int(sum(len(f) for f in logged)),
-               "simulated_sets": simulator.simulated, "effective_samples": float(1.0 / (w2 ** 2).sum()),
+               "simulated_sets": simulator.simulated, "effective_samples": float(1.0 / (w ** 2).sum()),
                "not_fitted": {k: getattr(prior, k) for k in NOT_FITTED},
                "statistics": {n: {"logged": float(fit.s_obs[i]), "prior": float(prior_stats[:, i].mean()),
-                                  "fitted": float(fitted_stats[:, i].mean()), "noise_sd": float(math.sqrt(noise2[i]))}
+                                  "fitted": float(fitted_stats[:, i].mean()), "noise_sd": float(math.sqrt(noise[i]))}
                               for i, n in enumerate(fit.names)},
-               "misfit_prior": misfit(prior_stats, noise1), "misfit_fitted": misfit(fitted_stats, noise2),
+               "misfit_prior": misfit(prior_stats, noise1), "misfit_fitted": misfit(fitted_stats, noise),
                "kept_values_checked": checked}
     features = {"logged": logged, "prior": [f for run in prior_runs for f in run],
                 "fitted": [f for run in fitted_runs for f in run]}

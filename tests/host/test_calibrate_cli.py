@@ -93,8 +93,9 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
     speed = result["parameters"]["free_speed"]
     settings = Settings(design_points=MIN_DESIGN_POINTS)
     searched = settings.search_simulations() if result["fit"]["kept_values_checked"] else 0
-    replicated = len(settings.rounds()) + 1  # the prior, each later round's centre, the fitted profile
-    assert result["fit"]["simulated_sets"] == replicated * 8 + sum(settings.rounds()) + searched - kept  # nothing twice
+    # the prior, each later round's centre and the fitted profile 8 times each, the rounds' points
+    assert settings.simulations() == (len(settings.rounds()) + 1) * 8 + sum(settings.rounds())
+    assert result["fit"]["simulated_sets"] == settings.simulations() + searched - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]
     assert (tmp_path / "calibration.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
