@@ -17,8 +17,12 @@ steering the search:
   differences between episodes;
 * the GP fits a noise variance (``deterministic_objective=False``) rather than
   interpolating the observations;
-* the reported optimum is the best design evaluated on the *full* batch, and the report
-  re-evaluates it on fresh episodes, so a lucky batch does not crown it.
+* the reported optimum is a design evaluated on the *full* batch (of the efficient
+  recipe's, the one its GP rates best; otherwise the best full batch), and the report
+  re-evaluates it on fresh episodes, so a lucky batch does not crown it;
+* the efficient recipe's GP corrects each screen by the screening bias that the promoted
+  designs near it measured (:func:`~tumblebot.sim.optimize.surrogate.screening_bias`):
+  common random numbers make every screen in a region share its luck.
 
 Recipes (:class:`Recipe`): ``standard`` (every trial a full batch), ``thesis`` (exactly
 the thesis's schedule: 1000 random designs, 1000 EI iterations, ``B = 240``) and

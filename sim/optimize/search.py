@@ -27,6 +27,7 @@ from tumblebot.sim.optimize.trials import (
     best_candidate,
     counted_trials,
     episode_count,
+    full_batch_results,
     make_sampler,
     trial_design,
 )
@@ -178,8 +179,10 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     def affordable(cost: int, keep: int = 0) -> bool:
         return episode_budget is None or spent_before + episodes + cost + keep <= episode_budget
 
+    best = _BestSoFar(study)
+
     def progress() -> Progress:
-        p = Progress(counted_trials(study), recipe.trials, episodes, best_candidate(study), last_value, last_state)
+        p = Progress(counted_trials(study), recipe.trials, episodes, best(), last_value, last_state)
         if on_progress is not None:
             on_progress(p)
         return p
@@ -219,6 +222,22 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
         episodes += _final_promotions(study, objective, recipe, runner, seed, safe_point,
                                       lambda: affordable(promotion))
     return progress()
+
+
+class _BestSoFar:
+    """:func:`best_candidate` for the progress line, chosen again only when the designs with
+    a full batch change (the choice fits the GP, which is too slow to do after every trial)."""
+
+    def __init__(self, study: optuna.Study) -> None:
+        self.study = study
+        self.key: frozenset[int] | None = None
+        self.best: Candidate | None = None
+
+    def __call__(self) -> Candidate | None:
+        key = frozenset(c.trial for c in full_batch_results(self.study))
+        if key != self.key:
+            self.key, self.best = key, best_candidate(self.study)
+        return self.best
 
 
 def _final_promotions(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,

@@ -189,6 +189,12 @@ class Observation:
     design: np.ndarray  # metres, PARAMETERS order
     S: np.ndarray
     e: float
+    screen: int = 0  #: how many of ``S`` (the first) are the screening episodes; 0: all of them
+
+    @property
+    def promoted(self) -> bool:
+        """Whether ``S`` goes on past the screening episodes (a full batch)."""
+        return 0 < self.screen < len(self.S)
 
 
 def observations(study: optuna.Study, weights: dict[str, float]) -> list[Observation]:
@@ -202,7 +208,8 @@ def observations(study: optuna.Study, weights: dict[str, float]) -> list[Observa
             continue
         S = sum(weights[task] * np.asarray(R[task], float) for task in weights if task in R)
         design = np.array([t.params[n] for n in PARAMETERS])
-        out.append(Observation(t.number, design, np.asarray(S), rec.e))
+        screen = min((len(rec.R[task]) for task in weights if task in rec.R), default=0)
+        out.append(Observation(t.number, design, np.asarray(S), rec.e, screen))
     return out
 
 
@@ -217,12 +224,49 @@ def batch_noise(obs: Sequence[Observation]) -> np.ndarray:
     return np.asarray(s2 / n)
 
 
+#: Width (GP input units) of the kernel that carries a promoted design's screening bias to
+#: the screened designs around it, and the pseudo-count of zero bias it is shrunk toward.
+BIAS_WIDTH, BIAS_PRIOR = 0.1, 1.0
+
+
+def screening_bias(obs: Sequence[Observation], U: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far each screened-only observation's batch mean is likely above its design's true
+    mean, and the variance of that estimate (zeros for full batches, and before any).
+
+    Every design is screened on the same episodes (common random numbers), so where those
+    few episodes happen to suit a region's designs, every screen there is high together, and
+    however many there are the GP takes their agreement for evidence. A promoted design
+    measures that bias where it stands: its screening episodes' mean minus the mean of the
+    rest of its batch. Each screen is corrected by the promoted designs near it (a Gaussian
+    kernel of :data:`BIAS_WIDTH` in the GP's inputs), shrunk toward no bias by
+    :data:`BIAS_PRIOR` pseudo-observations, and its noise grows by the estimate's variance."""
+    bias, var = np.zeros(len(obs)), np.zeros(len(obs))
+    full = [i for i, o in enumerate(obs) if o.promoted]
+    screened = [i for i, o in enumerate(obs) if not o.promoted]
+    if not full or not screened:
+        return bias, var
+    d = np.array([float(np.mean(obs[i].S[:obs[i].screen]) - np.mean(obs[i].S[obs[i].screen:])) for i in full])
+    per_episode = np.array([noise[i] * len(obs[i].S) for i in full])  # s² of each promoted design
+    var_d = np.array([s2 * (1.0 / obs[i].screen + 1.0 / (len(obs[i].S) - obs[i].screen))
+                      for i, s2 in zip(full, per_episode, strict=True)])
+    d2 = ((U[screened][:, None, :] - U[full][None, :, :]) ** 2).sum(-1)
+    K = np.exp(-d2 / (2 * BIAS_WIDTH ** 2))
+    total = BIAS_PRIOR + K.sum(1)
+    bias[screened] = K @ d / total
+    var[screened] = (K * K) @ var_d / total ** 2
+    return bias, var
+
+
 def fit(obs: Sequence[Observation], start: Hyper | None = None, margin: bool = False) -> RModel:
-    """The GP on the observations; ``margin``: on :func:`margin_features` (front studies)
-    instead of the unit cube. The model remembers its features (``model.features``)."""
+    """The GP on the observations, each screen corrected by :func:`screening_bias`;
+    ``margin``: on :func:`margin_features` (front studies) instead of the unit cube. The
+    model remembers its features (``model.features``)."""
     features = margin_features if margin else to_unit
-    y = np.array([float(np.mean(o.S)) for o in obs])
-    model = RModel(features(np.array([o.design for o in obs])), y, batch_noise(obs), start)
+    U = features(np.array([o.design for o in obs]))
+    noise = batch_noise(obs)
+    bias, bias_var = screening_bias(obs, U, noise)
+    y = np.array([float(np.mean(o.S)) for o in obs]) - bias
+    model = RModel(U, y, noise + bias_var, start)
     model.features = features
     return model
 

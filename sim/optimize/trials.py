@@ -168,9 +168,40 @@ def front_optima(study: optuna.Study, xis: tuple[float, ...]) -> dict[float, Can
 
 
 def best_candidate(study: optuna.Study) -> Candidate | None:
-    """The study's optimum: the best design on the full batch (or None before any)."""
+    """The study's optimum (None before any design has its full batch).
+
+    Of the designs with a full batch: in a study of the efficient recipe (single ``ξ``, the
+    thesis wrapper), the one the GP on ``R`` rates best (:func:`posterior_ratings`); in
+    any other, the best full batch."""
     cands = full_batch_results(study)
-    return max(cands, key=lambda c: c.value) if cands else None
+    if not cands:
+        return None
+    rated = posterior_ratings(study, [c.trial for c in cands])
+    if rated:
+        return max(cands, key=lambda c: (rated[c.trial], c.value))
+    return max(cands, key=lambda c: c.value)
+
+
+def posterior_ratings(study: optuna.Study, numbers: list[int]) -> dict[int, float]:
+    """The posterior-mean objective of trials ``numbers`` under the GP on ``R`` fitted to every
+    episode of an efficient-recipe study, or ``{}`` for another study (or before the GP has
+    three designs).
+
+    The efficient recipe promotes its most promising designs, which late in a study are
+    near-copies of one another; their 48-episode full batches differ by luck about as much
+    as by design, and the luckiest would win on its luck. The GP pools each design's
+    episodes with its neighbours', so the choice follows the surface, not the luck."""
+    from tumblebot.sim.optimize import surrogate
+
+    config = load_config(study)
+    if config is None or config.recipe != "efficient" or config.front or config.variant != "thesis" \
+            or not config.weights or math.isinf(float(config.xi)):
+        return {}
+    obs = surrogate.observations(study, config.weights)
+    if len(obs) < 3:
+        return {}
+    ratings = surrogate.posterior_objective(surrogate.fit(obs), obs, float(config.xi))
+    return {n: ratings[n] for n in numbers if n in ratings} if all(n in ratings for n in numbers) else {}
 
 
 def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,

@@ -205,3 +205,51 @@ def test_that_front_studies_model_r_over_the_log_leg_margin() -> None:
     front = Objective({"nav-flat": 1.0}, 0.0, front=(0.0, 3.0))
     sampler = make_sampler(Recipe.make("efficient", 30, 60), 0, 0, front)
     assert isinstance(sampler, s.RSampler) and sampler.margin
+
+
+def _trap(rng: np.random.Generator, n: int) -> list[surrogate.Observation]:
+    """Screens of a study whose screening episodes happen to suit short legs: there the
+    truth is 0.6, but every 4-episode screen reads 0.95 (the same episodes for every design);
+    elsewhere the truth is 0.9. Half the designs cluster at the light short-legged corner,
+    where such a search spends its trials. Every 10th design, and the first short-legged one,
+    has its full batch: its 4 screening episodes, then 44 that show the truth."""
+    out: list[surrogate.Observation] = []
+    shorts = 0
+    while len(out) < n:
+        corner = np.array([0.03, 0.03, 0.03, 0.12]) + rng.normal(0.0, 0.03, 4)
+        w = surrogate.from_unit(corner if rng.uniform() < 0.5 else rng.uniform(0.0, 1.0, 4))
+        if not surrogate.feasible(w[None, :])[0]:
+            continue
+        short = surrogate.to_unit(w[None, :])[0, 3] < 0.3
+        truth, screen = (0.6, 0.95) if short else (0.9, 0.9)
+        S = screen + rng.normal(0.0, 0.05, 4)
+        shorts += short
+        promoted = len(out) % 10 == 0 or (short and shorts == 1)
+        if promoted:
+            S = np.concatenate([S, truth + rng.normal(0.0, 0.15, 44)])
+        out.append(surrogate.Observation(len(out), w, S, energy_per_metre(Design(*w)), screen=4))
+    return out
+
+
+def test_that_screens_that_suit_one_region_are_corrected_by_the_full_batches_there() -> None:
+    rng = np.random.default_rng(5)
+    obs = _trap(rng, 90)
+    U = surrogate.to_unit(np.array([o.design for o in obs]))
+    short = U[:, 3] < 0.3
+    screened_short = [i for i, o in enumerate(obs) if short[i] and not o.promoted]
+    bias, var = surrogate.screening_bias(obs, U, surrogate.batch_noise(obs))
+    assert float(np.median(bias[screened_short])) > 0.1  # the short-legged screens are read as biased
+    assert all(bias[i] == 0.0 and var[i] == 0.0 for i, o in enumerate(obs) if o.promoted)
+    model = surrogate.fit(obs)
+    mu, _ = model.predict(surrogate.to_unit(np.array([o.design for o in obs])))
+    # the truth there is 0.6 and elsewhere 0.9; the screens alone would say 0.9 for both
+    assert float(np.mean(mu[short])) < 0.75 < 0.85 < float(np.mean(mu[~short]))
+
+
+def test_that_screens_are_left_alone_without_full_batches_near_them() -> None:
+    rng = np.random.default_rng(6)
+    obs = [o for o in _trap(rng, 60)]
+    screens_only = [surrogate.Observation(o.number, o.design, o.S[:4], o.e, 4) for o in obs]
+    U = surrogate.to_unit(np.array([o.design for o in obs]))
+    bias, var = surrogate.screening_bias(screens_only, U, surrogate.batch_noise(screens_only))
+    assert not bias.any() and not var.any()
