@@ -24,8 +24,10 @@ from tumblebot.sim.optimize import (
     best_candidate,
     counted_trials,
     episode_count,
+    full_batch_results,
     parse_tasks,
     parse_xi,
+    posterior_ratings,
     promotion_scores,
     promotions,
     screen_scores,
@@ -189,6 +191,21 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     assert set(scores) == {t.number for t in screened}
     top = max(scores, key=lambda n: scores[n])
     assert top in promoted  # the most promising design (GP posterior) got its full batch before the end
+    # the optimum is the full batch the GP rates best, not the luckiest 60 episodes
+    rated = posterior_ratings(study, list(promoted))
+    assert set(rated) == set(promoted) and best.trial == max(rated, key=lambda n: rated[n])
+    assert best.trial == top
+
+
+def test_that_a_study_of_full_batches_only_takes_its_best_full_batch(tmp_path: Path) -> None:
+    db = tmp_path / "s.db"
+    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--recipe", "standard", "--trials", "6",
+             "--batch", "8", "--storage", f"sqlite:///{db}", "--study", "s", "--quiet", "--workers", "2")
+    assert run.returncode == 0, run.stderr
+    study = load(db, "s")
+    assert posterior_ratings(study, [t.number for t in study.trials]) == {}
+    best = best_candidate(study)
+    assert best is not None and best.value == max(c.value for c in full_batch_results(study))
 
 
 # ------------------------------------------------------------------ bad input
