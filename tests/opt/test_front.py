@@ -246,9 +246,9 @@ def test_that_screens_that_suit_one_region_are_corrected_by_the_full_batches_the
     assert float(np.mean(mu[short])) < 0.75 < 0.85 < float(np.mean(mu[~short]))
 
 
-def test_that_screens_are_left_alone_without_full_batches_near_them() -> None:
+def test_that_screens_are_left_alone_until_some_design_has_its_full_batch() -> None:
     rng = np.random.default_rng(6)
-    obs = [o for o in _trap(rng, 60)]
+    obs = _trap(rng, 60)
     screens_only = [surrogate.Observation(o.number, o.design, o.S[:4], o.e, 4) for o in obs]
     U = surrogate.to_unit(np.array([o.design for o in obs]))
     bias, var = surrogate.screening_bias(screens_only, U, surrogate.batch_noise(screens_only))
