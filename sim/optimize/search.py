@@ -108,10 +108,9 @@ def promotion_scores(study: optuna.Study, objective: Objective, xi: float) -> di
     in ``R``), :func:`screen_scores`."""
     from tumblebot.sim.optimize import surrogate
 
-    obs = surrogate.observations(study, objective.weights)
-    if len(obs) < 3 or objective.variant != "thesis":
-        return screen_scores(study, objective.at(xi))
-    return surrogate.posterior_objective(surrogate.fit(obs, margin=bool(objective.front)), obs, xi)
+    posterior = surrogate.study_posterior(study, objective.weights, xi, margin=bool(objective.front)) \
+        if objective.variant == "thesis" else {}
+    return posterior or screen_scores(study, objective.at(xi))
 
 
 def _promote(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,

@@ -280,6 +280,17 @@ def posterior_objective(model: RModel, obs: Sequence[Observation], xi: float) ->
     return {o.number: float(m / s) for o, m, s in zip(obs, mu, scale, strict=True)}
 
 
+def study_posterior(study: optuna.Study, weights: dict[str, float], xi: float, margin: bool = False
+                    ) -> dict[int, float]:
+    """Each feasible finished trial's posterior-mean objective at ``ξ`` under the GP fitted to
+    every episode of ``study`` (:func:`observations`, :func:`fit`), or ``{}`` before three
+    designs have results."""
+    obs = observations(study, weights)
+    if len(obs) < 3:
+        return {}
+    return posterior_objective(fit(obs, margin=margin), obs, xi)
+
+
 def propose(model: RModel, obs: Sequence[Observation], xis: float | Sequence[float], rng: np.random.Generator,
             pending: np.ndarray | None = None, n_random: int = 1500, n_local: int = 600) -> np.ndarray:
     """The feasible design (metres) of highest expected improvement of ``S/(e+1)^ξ``.

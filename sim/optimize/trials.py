@@ -197,11 +197,10 @@ def posterior_ratings(study: optuna.Study, numbers: list[int]) -> dict[int, floa
     if config is None or config.recipe != "efficient" or config.front or config.variant != "thesis" \
             or not config.weights or math.isinf(float(config.xi)):
         return {}
-    obs = surrogate.observations(study, config.weights)
-    if len(obs) < 3:
+    ratings = surrogate.study_posterior(study, config.weights, float(config.xi))
+    if not all(n in ratings for n in numbers):
         return {}
-    ratings = surrogate.posterior_objective(surrogate.fit(obs), obs, float(config.xi))
-    return {n: ratings[n] for n in numbers if n in ratings} if all(n in ratings for n in numbers) else {}
+    return {n: ratings[n] for n in numbers}
 
 
 def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,

@@ -135,8 +135,11 @@ def test_that_optimize_completes_resumes_and_reports(tmp_path: Path) -> None:
     for png in ("objective_vs_trial.png", "best_design_vs_trial.png", "slices.png", "energy.png"):
         assert (out / png).stat().st_size > 5000
     data = json.loads((out / "report.json").read_text())
-    best = best_candidate(load(db, "s"))
-    assert best is not None
+    study = load(db, "s")
+    best = best_candidate(study)
+    # a study of full batches only (the standard recipe) takes its best full batch, no GP
+    assert posterior_ratings(study, [t.number for t in study.trials]) == {}
+    assert best is not None and best.value == max(c.value for c in full_batch_results(study))
     assert data["table31"][0]["design"] == pytest.approx(dict(zip("xyzl", best.design.as_tuple(), strict=True)))
     assert [r["change"] for r in data["table32"]] == ["none", "+x", "-x", "+y", "-y", "+z", "-z", "+l", "-l"]
 
@@ -196,16 +199,6 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     assert set(rated) == set(promoted) and best.trial == max(rated, key=lambda n: rated[n])
     assert best.trial == top
 
-
-def test_that_a_study_of_full_batches_only_takes_its_best_full_batch(tmp_path: Path) -> None:
-    db = tmp_path / "s.db"
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--recipe", "standard", "--trials", "6",
-             "--batch", "8", "--storage", f"sqlite:///{db}", "--study", "s", "--quiet", "--workers", "2")
-    assert run.returncode == 0, run.stderr
-    study = load(db, "s")
-    assert posterior_ratings(study, [t.number for t in study.trials]) == {}
-    best = best_candidate(study)
-    assert best is not None and best.value == max(c.value for c in full_batch_results(study))
 
 
 # ------------------------------------------------------------------ bad input
