@@ -65,7 +65,7 @@ def main() -> None:
 
     weights = {args.task: 1.0}
     efficient = Recipe("efficient", 100_000, args.batch, args.startup, args.screen, promote_every=0,
-                       final_promotions=1, models_R=True)
+                       final_promotions=1)
     out: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: bundled_policy(args.task)},
                                                              workers=args.workers) as runner:

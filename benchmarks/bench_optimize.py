@@ -146,7 +146,7 @@ def main() -> None:
               flush=True)
         for seed in range(args.seeds):
             efficient = Recipe("efficient", 100_000, args.batch, args.startup, args.screen, promote_every=0,
-                               final_promotions=1, models_R=True)
+                               final_promotions=1)
             eff = run_recipe(objective, efficient, seed, runner, f"sqlite:///{Path(tmp) / f'eff-{seed}.db'}",
                              f"efficient-{seed}", budget=budget, policy=args.policy)
             scores = fresh_scores(objective, runner, eff["design"], args.final_episodes, cache)

@@ -81,17 +81,17 @@ def _sim(args: argparse.Namespace) -> int:
 
     task = get_task(args.task)  # run_gait_episode checks the gait (or goto) for the task
     w = Design.parse(args.design, allow_out_of_bounds=args.allow_out_of_bounds)
-    servo = profile_from_args(args)
+    physics = profile_from_args(args)
     if args.video is not None:
         if args.video.suffix.lower() not in (".gif", ".png"):
             raise TumblebotError(f"--video {args.video}: the file must end in .gif (or .png)")
         check_writable(args.video, "--video")
     # randomised: the profile's spreads; else nominal everything, on the profile's floor
-    rnd = (servo.randomization(Randomization(design=False)) if args.randomize
-           else replace(Randomization.off(), friction=servo.friction))
-    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, record=args.video is not None, physics=servo)
+    rnd = (physics.randomization(Randomization(design=False)) if args.randomize
+           else replace(Randomization.off(), friction=physics.friction))
+    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, record=args.video is not None, physics=physics)
     print(f"{task.name}: {task.description}")
-    print(f"{w}, gait {args.gait!r}, {servo.describe()}, seed {args.seed}")
+    print(f"{w}, gait {args.gait!r}, {physics.describe()}, seed {args.seed}")
     print(f"{'step':>4}  {'action (R, L)':<18} {'x':>7} {'y':>7} {'z':>6}  {'R':>7}")
     labels = ("reverse", "stop", "forward")
     for s in result.steps:
@@ -132,7 +132,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise TumblebotError("give --policy or --gait, not both")
     if args.xi is not None and not args.xi >= 0:
         raise TumblebotError(f"--xi {args.xi} must be >= 0 (or inf)")
-    servo = profile_from_args(args)
+    physics = profile_from_args(args)
     if args.gait is not None:
         controller = Driver.of_gait(args.gait)
     else:
@@ -143,7 +143,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.csv is not None:
         check_writable(args.csv, "--csv")
     result = evaluate(task.name, w, controller, args.episodes, args.seed, args.workers, progress=not args.json,
-                      servo=servo)
+                      physics=physics)
     summary = result.summary(xi=args.xi)
     if args.csv is not None:
         import csv
@@ -157,7 +157,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return 0
     lo, hi = summary["ci95"]
-    print(f"{task.name}, {w}, {result.controller}, {servo.describe()}, {result.episodes} episodes, seed {args.seed}")
+    print(f"{task.name}, {w}, {result.controller}, {physics.describe()}, {result.episodes} episodes, seed {args.seed}")
     interval = f"95 % CI {lo:.3f} … {hi:.3f}, sd {summary['sd_R']:.3f}" if result.episodes > 1 else \
         "no CI from one episode"
     print(f"mean final-state R  {summary['mean_R']:.3f}  ({interval})")

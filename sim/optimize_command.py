@@ -31,7 +31,7 @@ class OptimizePlan:
 
     objective: Objective
     recipe: Recipe
-    servo: PhysicsProfile
+    physics: PhysicsProfile
     drivers: dict[str, Driver]  #: task → what drives its episodes
     config: StudyConfig  #: what the study stores and checks on resume
     name: str  #: the study's name
@@ -75,19 +75,19 @@ def _optimize_plan(args: argparse.Namespace) -> OptimizePlan:
         raise OptimizeError(f"--episode-budget {args.episode_budget} must be at least 1")
     if args.json is not None:
         check_writable(args.json, "--json")
-    servo = profile_from_args(args)
+    physics = profile_from_args(args)
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
     controller = args.gait or ("thesis-policy" if args.thesis_policies else "policy")
-    drivers = study_drivers(controller, objective.tasks, args.allow_servo_mismatch, servo,
+    drivers = study_drivers(controller, objective.tasks, args.allow_servo_mismatch, physics,
                             parse_policy_files(args.policy, objective.tasks))
     policies = {t: Path(c.name) for t, c in drivers.items() if c.kind == "onnx"}
     config = StudyConfig.of(objective, recipe, args.seed, {t: sha256_of(p) for t, p in policies.items()},
-                            controller=controller, servo=servo)
+                            controller=controller, physics=physics)
     suffix = "-front" if objective.front else f"-xi{format_xi(objective.xi)}"
     name = args.study or "-".join(f"{t}={w:g}" for t, w in objective.weights.items()) + suffix
     storage_url = args.storage or os.environ.get("TUMBLEBOT_STORAGE") or DEFAULT_STORAGE
-    return OptimizePlan(objective, recipe, servo, drivers, config, name, storage_url)
+    return OptimizePlan(objective, recipe, physics, drivers, config, name, storage_url)
 
 
 def _optimize_bar(trials: int, quiet: bool) -> tuple[Any, Callable[[Any], None]]:
@@ -143,7 +143,8 @@ def _optimize(args: argparse.Namespace) -> int:
         bar, show = _optimize_bar(recipe.trials, args.quiet)
         runner = None
         try:
-            runner = EpisodeRunner(plan.drivers, workers=args.workers, servo=plan.servo) if objective.tasks else None
+            runner = EpisodeRunner(plan.drivers, workers=args.workers, physics=plan.physics) \
+                if objective.tasks else None
             result = optimize(study, objective, recipe, runner, args.seed, on_progress=show,
                               episode_budget=args.episode_budget, should_stop=stop)
         except (StopRequested, KeyboardInterrupt):

@@ -25,7 +25,7 @@ def _report(args: argparse.Namespace) -> int:
     check_writable(args.output / "report.md", "-o")
 
     given = any(v is not None for v in (args.physics, args.motor_model, args.stall_torque))
-    servo = profile_from_args(args) if given else None  # else the studies' own
+    physics = profile_from_args(args) if given else None  # else the studies' own
     if args.gait is not None and args.thesis_policies:
         raise TumblebotError("give --gait or --thesis-policies, not both")
     from tumblebot.sim.optimize import parse_xi_list
@@ -33,7 +33,7 @@ def _report(args: argparse.Namespace) -> int:
     xis = parse_xi_list(args.xi) if args.xi is not None else None
     path = write_report(args.storage, args.study, args.output, episodes=args.episodes, workers=args.workers,
                         seed=args.seed, slice_points=args.slice_points, progress=not args.quiet,
-                        controller=args.gait or ("thesis-policy" if args.thesis_policies else None), servo=servo,
+                        controller=args.gait or ("thesis-policy" if args.thesis_policies else None), physics=physics,
                         allow_servo_mismatch=args.allow_servo_mismatch, xis=xis, policies=args.policy)
     print(f"wrote {path}")
     return 0

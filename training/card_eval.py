@@ -82,16 +82,16 @@ def fresh_designs(task: str, seed: int = FRESH_DESIGN_SEED) -> dict[str, Design]
 
 def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
                             workers: int, known: dict[Design, EvalResult] | None = None,
-                            servo: PhysicsProfile = THESIS) -> dict[str, Any]:
+                            physics: PhysicsProfile = THESIS) -> dict[str, Any]:
     """The policy against each hand-written navigation controller (:data:`NAVIGATORS`) on
     each design, on the same episodes; a table's rows and the bar's verdict. ``known``
     holds the policy's results already measured on these episodes, by design."""
     rows: list[dict[str, Any]] = []
     for label, design in designs.items():
         pol = (known or {}).get(design) or evaluate(task, design, Driver("onnx", str(policy)), episodes, seed,
-                                                    workers, progress=True, servo=servo)
+                                                    workers, progress=True, physics=physics)
         hand = {name: evaluate(task, design, Driver("goto", name), episodes, seed, workers, progress=True,
-                               servo=servo) for name in NAVIGATORS}
+                               physics=physics) for name in NAVIGATORS}
         strongest = max(hand, key=lambda name: hand[name].mean_R)
         rows.append({"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
                      "hand_written": {name: {"mean_R": r.mean_R, "difference": pol.mean_R - r.mean_R,
@@ -153,7 +153,7 @@ def _welch_from_summary(a: EvalResult, b: dict[str, Any], n: int) -> float:
 
 
 def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Design, task: str, episodes: int,
-                        seed: int, workers: int, servo: PhysicsProfile = THESIS) -> dict[str, Any] | None:
+                        seed: int, workers: int, physics: PhysicsProfile = THESIS) -> dict[str, Any] | None:
     """A previous card's gait baselines for ``label``, if they are for the same design,
     episodes and seed and still reproduce: the gaits do not depend on the policy, so the
     same episodes give the same numbers. Checked by re-running its best fixed gait, which
@@ -164,7 +164,7 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
     if not entry or entry.get("design") != design.as_dict() or "baselines" not in entry:
         return None
     best = entry["best_fixed_gait"]
-    check = evaluate(task, design, Driver("gait", best), episodes, seed, workers, progress=True, servo=servo)
+    check = evaluate(task, design, Driver("gait", best), episodes, seed, workers, progress=True, physics=physics)
     if check.mean_R != entry["baselines"][best]["mean_R"]:
         return None
     return {"baselines": entry["baselines"], "best_fixed_gait": best}
@@ -175,15 +175,15 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
     """The card's evaluation. ``previous``, an earlier card's ``evaluation`` for the same
     task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`).
     Every episode runs under the physics profile the policy was trained under (its card's)."""
-    servo = PhysicsProfile.from_card(json.loads(card_path(policy).read_text()).get("servo") or {})
+    physics = PhysicsProfile.from_card(json.loads(card_path(policy).read_text()).get("servo") or {})
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     measured: dict[Design, EvalResult] = {}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
         pol = evaluate(task, design, Driver("onnx", str(policy)), episodes, seed, workers, progress=True,
-                       servo=servo)
+                       physics=physics)
         measured[design] = pol
         entry = pol.summary()
-        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers, servo)
+        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers, physics)
         if recorded is not None:
             entry.update(recorded, baselines_reused_from_previous_card=True)
             base = recorded["baselines"]
@@ -191,7 +191,7 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
             entry["p_vs_random_policy"] = _welch_from_summary(pol, base["random"], episodes)
         else:
             gaits = {g: evaluate(task, design, Driver("gait", g), episodes, seed, workers, progress=True,
-                                 servo=servo) for g in [*FIXED_GAITS, "random"]}
+                                 physics=physics) for g in [*FIXED_GAITS, "random"]}
             best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
             entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
             entry["best_fixed_gait"] = best_fixed
@@ -202,8 +202,8 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
         # The grid on flat ground; on terrain (six times slower to simulate) the card's two designs.
         designs = NAV_GRID if task == "nav-flat" else {"thesis ξ = 3 robot": XI3_ROBOT, "random design": RANDOM_DESIGN}
         out["against_hand_written"] = {
-            "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, servo),
+            "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, physics),
             "fresh": {"design_seed": FRESH_DESIGN_SEED,
                       **hand_written_comparison(policy, task, fresh_designs(task), min(episodes, FRESH_EPISODES),
-                                                seed, workers, servo=servo)}}
+                                                seed, workers, physics=physics)}}
     return out

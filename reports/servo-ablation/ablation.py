@@ -62,7 +62,7 @@ def main() -> None:
     for label, w in designs.items():
         row: dict[str, Any] = {"design": label, "w": list(w.as_tuple()), "goto": {}, "policy": {}}
         for name, servo in SERVOS.items():
-            r = evaluate("nav-flat", w, Driver.of_gait("goto"), args.episodes, 0, args.workers, servo=servo)
+            r = evaluate("nav-flat", w, Driver.of_gait("goto"), args.episodes, 0, args.workers, physics=servo)
             row["goto"][name] = {"mean_R": r.mean_R, "ci95": list(r.ci95)}
             print(f"{label:<40} goto   {name:<36} {r.mean_R:.3f}", flush=True)
         r = evaluate("nav-flat", w, policy, args.episodes, 0, args.workers)

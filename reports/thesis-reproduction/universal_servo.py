@@ -73,7 +73,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     cells: dict[str, dict[str, dict[str, list[float]]]] = {}
     started = time.monotonic()
     for servo_name, servo in SERVOS.items():
-        with EpisodeRunner(CONTROLLERS, workers=args.workers, servo=servo) as runner:
+        with EpisodeRunner(CONTROLLERS, workers=args.workers, physics=servo) as runner:
             for task in TASKS:
                 for body, d in designs.items():
                     R = runner.run(d, [task], 0, args.episodes, args.seed)[task].tolist()

@@ -44,16 +44,16 @@ class Driver:
             return Path(self.name).name
         return self.name if self.kind == "goto" else f"gait:{self.name}"
 
-    def check(self, task: str, servo: PhysicsProfile | None = None) -> None:
-        """Fail fast, in this process, with one clear error. A policy is refused under a
-        servo other than the one it was trained under (its model card's ``servo``; cards
-        without one were trained under the default), unless ``allow_servo_mismatch``."""
+    def check(self, task: str, physics: PhysicsProfile | None = None) -> None:
+        """Fail fast, in this process, with one clear error. A policy is refused under
+        ``physics`` other than the profile it was trained under (its model card's ``servo``;
+        cards without one were trained under the default), unless ``allow_servo_mismatch``."""
         if self.kind == "onnx":
             policy = OnnxPolicy(Path(self.name), task=get_task(task).name)
             trained = PhysicsProfile.from_card(policy.card.get("servo") or {})
-            if servo is not None and not self.allow_servo_mismatch and not trained.same_as(servo):
+            if physics is not None and not self.allow_servo_mismatch and not trained.same_as(physics):
                 raise PolicyError(f"policy {Path(self.name).name} was trained under the {trained.describe()}, "
-                                  f"not the {servo.describe()}: train one under that world (tumblebot train "
+                                  f"not the {physics.describe()}: train one under that world (tumblebot train "
                                   "--physics, --motor-model/--stall-torque), or pass --allow-servo-mismatch to use "
                                   "it anyway")
         elif self.kind == "goto":

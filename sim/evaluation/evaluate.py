@@ -38,7 +38,7 @@ class EvalResult:
     final_distance: np.ndarray  #: planar distance to the origin at the end, m
     final_position: np.ndarray  #: (N, 3)
     wall_seconds: float
-    servo: PhysicsProfile = field(default_factory=PhysicsProfile)
+    physics: PhysicsProfile = field(default_factory=PhysicsProfile)
     e: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -64,9 +64,9 @@ class EvalResult:
             "task": self.task,
             "design": self.design.as_dict(),
             "controller": self.controller,
-            "motor_model": self.servo.motor_model,
-            "stall_torque": self.servo.stall_torque,
-            "physics": self.servo.record(),
+            "motor_model": self.physics.motor_model,
+            "stall_torque": self.physics.stall_torque,
+            "physics": self.physics.record(),
             "seed": self.seed,
             "episodes": self.episodes,
             "mean_R": self.mean_R,
@@ -84,10 +84,10 @@ class EvalResult:
 
 
 def evaluate(task: str, design: Design, controller: Driver, episodes: int, seed: int = 0,
-             workers: int = 1, progress: bool = False, servo: PhysicsProfile | None = None) -> EvalResult:
+             workers: int = 1, progress: bool = False, physics: PhysicsProfile | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
     spec = get_task(task)
-    servo = servo or PhysicsProfile()
+    physics = physics or PhysicsProfile()
     if episodes < 1:
         raise SimError(f"episodes={episodes} must be at least 1")
     if workers < 1:
@@ -95,7 +95,7 @@ def evaluate(task: str, design: Design, controller: Driver, episodes: int, seed:
     if seed < 0:
         raise SimError(f"seed={seed} must be a non-negative integer")
     start = time.perf_counter()
-    with EpisodeRunner({spec.name: controller}, workers=workers, servo=servo) as runner:  # checks the controller
+    with EpisodeRunner({spec.name: controller}, workers=workers, physics=physics) as runner:  # checks the controller
         bar = None
         if progress:
             from tqdm import tqdm
@@ -106,4 +106,4 @@ def evaluate(task: str, design: Design, controller: Driver, episodes: int, seed:
         if bar is not None:
             bar.close()
     return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
-                      time.perf_counter() - start, servo)
+                      time.perf_counter() - start, physics)

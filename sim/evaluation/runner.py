@@ -34,8 +34,8 @@ Result = tuple[str, int, float, tuple[float, float, float]]  # task, episode ind
 class _Worker:
     """One process's environments and controllers, one per task, reused across designs."""
 
-    def __init__(self, controllers: dict[str, Driver], servo: PhysicsProfile) -> None:
-        self.controllers, self.servo = controllers, servo
+    def __init__(self, controllers: dict[str, Driver], physics: PhysicsProfile) -> None:
+        self.controllers, self.physics = controllers, physics
         self.envs: dict[str, Any] = {}
         self.actors: dict[str, Actor] = {}
 
@@ -45,8 +45,8 @@ class _Worker:
             from tumblebot.sim.world.env import TumblerEnv
             from tumblebot.sim.world.randomization import Randomization
 
-            self.envs[task] = TumblerEnv(task=task, randomization=self.servo.randomization(Randomization(design=False)),
-                                         **self.servo.env_kwargs())
+            randomization = self.physics.randomization(Randomization(design=False))
+            self.envs[task] = TumblerEnv(task=task, randomization=randomization, **self.physics.env_kwargs())
             controller = self.controllers[task]
             self.actors[task] = make_actor(controller.kind, controller.name, task)
         out = run_episode(self.envs[task], self.actors[task], seed,
@@ -73,24 +73,24 @@ class EpisodeRunner:
             :class:`~tumblebot.sim.control.drivers.Driver` (a policy, a gait or ``goto``).
             Every task to be run needs one.
         workers: worker processes (1 runs in this process).
-        servo: the servo model of every episode (default: DC, the thesis's constants).
+        physics: the physics profile of every episode (default: ``thesis``).
     """
 
     def __init__(self, controllers: Mapping[str, Path | str | Driver], workers: int = 1,
-                 servo: PhysicsProfile | None = None) -> None:
+                 physics: PhysicsProfile | None = None) -> None:
         if workers < 1:
             raise SimError(f"workers={workers} must be at least 1")
-        self.servo = servo or PhysicsProfile()
+        self.physics = physics or PhysicsProfile()
         specs: dict[str, Driver] = {}
         for task, c in controllers.items():
             name = get_task(task).name
             spec = c if isinstance(c, Driver) else Driver("onnx", str(c))
-            spec.check(name, self.servo)  # fail fast, in this process, with a clear error
+            spec.check(name, self.physics)  # fail fast, in this process, with a clear error
             specs[name] = spec
         self.controllers = specs
         self.workers = workers
         self.episodes_run = 0
-        self._pool: WorkerPool[_Worker] | None = WorkerPool(_Worker, (self.controllers, self.servo), workers)
+        self._pool: WorkerPool[_Worker] | None = WorkerPool(_Worker, (self.controllers, self.physics), workers)
 
     def run(self, design: Design, tasks: Iterable[str], start: int, stop: int, seed: int,
             on_result: Callable[[], object] | None = None) -> dict[str, np.ndarray]:

@@ -21,8 +21,9 @@ class Recipe:
         promote_every: efficient only: after every this many trials, the best design not yet
             evaluated on the full batch gets the remaining ``batch - screen_batch`` episodes.
         final_promotions: efficient only: designs promoted when the trials are done.
-        models_R: the GP models each task's R with e(w) exact (:class:`RSampler`), rather
-            than Optuna's GP-logEI on the noisy objective.
+
+    The efficient recipe's GP models each task's R with e(w) exact (:meth:`surrogate`);
+    the others use Optuna's GP-logEI on the noisy objective.
     """
 
     name: str
@@ -32,7 +33,6 @@ class Recipe:
     screen_batch: int
     promote_every: int = 0
     final_promotions: int = 0
-    models_R: bool = False
 
     def __post_init__(self) -> None:
         if self.trials < 1:
@@ -65,11 +65,12 @@ class Recipe:
         if name == "efficient":
             screen = max(min(batch, 4), batch // 15)
             return cls("efficient", trials, batch, startup, screen, promote_every=10,
-                       final_promotions=min(3, trials), models_R=True)
+                       final_promotions=min(3, trials))
         raise OptimizeError(f"--recipe {name!r} must be standard, thesis or efficient")
 
     def surrogate(self, objective: Objective | None) -> str:
         """Which GP proposes the designs: ``"R"`` (each task's R modelled, e(w) exact: the
         efficient recipe, and every front study) or ``"logEI"`` (Optuna's GP-logEI on the
         noisy objective)."""
-        return "R" if objective is not None and objective.tasks and (self.models_R or objective.front) else "logEI"
+        models_R = objective is not None and objective.tasks and (self.name == "efficient" or objective.front)
+        return "R" if models_R else "logEI"

@@ -69,15 +69,15 @@ class StudyConfig:
 
     @classmethod
     def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
-           controller: str = "policy", servo: PhysicsProfile | None = None) -> StudyConfig:
+           controller: str = "policy", physics: PhysicsProfile | None = None) -> StudyConfig:
         xi: float | str = "inf" if math.isinf(objective.xi) else objective.xi
-        servo = servo or PhysicsProfile()
-        kept = servo.as_fields()
+        physics = physics or PhysicsProfile()
+        kept = physics.as_fields()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
                    recipe.startup, seed, policies, controller, kept["motor_model"], kept["stall_torque"],
                    [format_xi(x) for x in objective.front], kept["physics"])
 
-    def servo(self) -> PhysicsProfile:
+    def profile(self) -> PhysicsProfile:
         """The study's physics profile (the world of every episode)."""
         return PhysicsProfile.of_fields(self.motor_model, self.stall_torque, self.physics)
 
@@ -92,8 +92,8 @@ class StudyConfig:
         out = [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
                for k in mine if k not in ("startup", "physics") and mine[k] != theirs[k]]
         said = any(line.startswith(("motor_model", "stall_torque")) for line in out)
-        if not said and not self.servo().same_as(other.servo()):  # the values matter, not the profile's name
-            out.append(f"physics: study has {self.servo().describe()}, command asks for {other.servo().describe()}")
+        if not said and not self.profile().same_as(other.profile()):  # the values matter, not the profile's name
+            out.append(f"physics: study has {self.profile().describe()}, command asks for {other.profile().describe()}")
         return out
 
 

@@ -204,11 +204,11 @@ def posterior_ratings(study: optuna.Study, numbers: list[int]) -> dict[int, floa
 
 
 def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool = False,
-                  servo: PhysicsProfile | None = None, policies: dict[str, Path] | None = None
+                  physics: PhysicsProfile | None = None, policies: dict[str, Path] | None = None
                   ) -> dict[str, Driver]:
     """``controller`` ``"policy"`` (each task's bundled ONNX policy), ``"thesis-policy"``
     (the bundled ones with the thesis observation) or a gait name (``goto`` and ``plan``
-    included), as a task → :class:`Driver` map, each checked for its task and ``servo``
+    included), as a task → :class:`Driver` map, each checked for its task and ``physics``
     (here, before a study is opened or written). ``policies`` (``--policy TASK=FILE``)
     replaces the bundled policy of its tasks: a study pinned to the files it used."""
     policies = policies or {}
@@ -224,7 +224,7 @@ def study_drivers(controller: str, tasks: list[str], allow_servo_mismatch: bool 
     else:
         out = {t: Driver.of_gait(controller) for t in tasks}
     for t, c in out.items():
-        c.check(t, servo)
+        c.check(t, physics)
     return out
 
 

@@ -61,13 +61,13 @@ def _check_arguments(studies: list[str], episodes: int | None, slice_points: int
 
 def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: int | None = None,
                  workers: int = 1, seed: int = 1, slice_points: int = 7, progress: bool = True,
-                 controller: str | None = None, servo: PhysicsProfile | None = None,
+                 controller: str | None = None, physics: PhysicsProfile | None = None,
                  allow_servo_mismatch: bool = False, xis: tuple[float, ...] | None = None,
                  policies: list[str] | None = None) -> Path:
     """Evaluate and plot the studies; returns the path of ``report.md``.
 
-    Every design is re-evaluated with one controller and one servo, so the tables compare
-    like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``servo`` default
+    Every design is re-evaluated with one controller and one physics profile, so the tables
+    compare like with like: ``controller`` (``"policy"``, ``goto`` or a gait) and ``physics`` default
     to what the studies used, which must then agree. A front study (``optimize --front``)
     stands for one row per ``ξ`` of ``xis`` (default: the ξ it was made for); ``xis`` is
     refused for other studies. ``policies`` (``--policy [TASK=]FILE``) replaces bundled
@@ -89,11 +89,11 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
     universal_tasks = sorted({r.tasks[0] for r in single})
     total = len(usable) + 9 + len(PARAMETERS) * slice_points + len(universal_tasks) ** 2
     out_dir.mkdir(parents=True, exist_ok=True)
-    given = servo
-    controller, servo = common_controller(results, controller, servo)
-    pairs, missing = rebuild_pairs(usable, servo) if given is not None else ([], "")
+    given = physics
+    controller, physics = common_controller(results, controller, physics)
+    pairs, missing = rebuild_pairs(usable, physics) if given is not None else ([], "")
     files = parse_policy_files(policies, all_tasks)
-    ev = Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, servo, allow_servo_mismatch,
+    ev = Evaluator(all_tasks, episodes, workers, seed, total, progress, controller, physics, allow_servo_mismatch,
                    files)
     rebuild: list[dict[str, object]] = []
     try:
@@ -106,14 +106,14 @@ def write_report(storage_url: str, studies: list[str], out_dir: Path, episodes: 
         universal = universal_check(ev, single, universal_tasks)
         slices = one_parameter_slices(ev, reference, slice_points)
         if pairs:
-            rebuild = would_i_still_build_it(pairs, ev, servo, allow_servo_mismatch)
+            rebuild = would_i_still_build_it(pairs, ev, physics, allow_servo_mismatch)
     finally:
         ev.close()
     data = {"storage": redact_url(storage_url), "studies": [r.name for r in results], "episodes": episodes,
             "seed": seed,
             "reference_study": reference.name, "reference_task": ref_task,
             "study_episodes": {r.name: r.episodes for r in results},
-            "controller": controller, "policies": ev.policy_hashes, "servo": servo.record(),
+            "controller": controller, "policies": ev.policy_hashes, "servo": physics.record(),
             "table31": table31, "table32": table32, "universal": universal, "slices": slices,
             "rebuild": rebuild, "rebuild_missing": missing}
     plots = draw_plots(results, reference, slices, out_dir)

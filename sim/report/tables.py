@@ -105,7 +105,7 @@ class Evaluator:
     """Evaluates designs on the report's episodes, with a cache and a progress bar."""
 
     def __init__(self, tasks: list[str], episodes: int, workers: int, seed: int, total: int, progress: bool,
-                 controller: str = "policy", servo: PhysicsProfile | None = None,
+                 controller: str = "policy", physics: PhysicsProfile | None = None,
                  allow_servo_mismatch: bool = False, policies: dict[str, Path] | None = None) -> None:
         from tumblebot.sim.control.policy import sha256_of
         from tumblebot.sim.evaluation.runner import EpisodeRunner
@@ -114,7 +114,7 @@ class Evaluator:
         self.policies = policies or {}
         #: task → SHA-256 of the ONNX policy that re-evaluates it (none for goto or a gait)
         self.policy_hashes = {t: sha256_of(Path(d.name)) for t, d in drivers.items() if d.kind == "onnx"}
-        self.runner = EpisodeRunner(drivers, workers=workers, servo=servo) if tasks else None
+        self.runner = EpisodeRunner(drivers, workers=workers, physics=physics) if tasks else None
         self.episodes, self.seed = episodes, seed
         self.tasks, self.workers, self.controller = tasks, workers, controller
         self.cache: dict[tuple[tuple[float, ...], str], np.ndarray] = {}
@@ -232,23 +232,23 @@ def check_policies(results: list[StudyResult], controller: str, hashes: dict[str
                                     f"{task}=FILE, or re-evaluate with another controller (--gait goto)")
 
 
-def common_controller(results: list[StudyResult], controller: str | None, servo: PhysicsProfile | None
+def common_controller(results: list[StudyResult], controller: str | None, physics: PhysicsProfile | None
                        ) -> tuple[str, PhysicsProfile]:
-    """The controller and servo of the re-evaluation: as given, else the studies' own."""
+    """The controller and physics profile of the re-evaluation: as given, else the studies' own."""
     if controller is None:
         used = sorted({r.config.controller for r in results})
         if len(used) > 1:
             raise OptimizeError(f"the studies were run with different controllers ({', '.join(used)}); "
                                 "choose one for the report with --gait (goto) or run separate reports")
         controller = used[0]
-    if servo is None:
-        servos = {r.config.servo() for r in results}
-        if len(servos) > 1:
-            raise OptimizeError("the studies were run with different servos ("
-                                + "; ".join(sorted(s.describe() for s in servos))
-                                + "); choose one with --motor-model/--stall-torque")
-        servo = servos.pop()
-    return controller, servo
+    if physics is None:
+        profiles = {r.config.profile() for r in results}
+        if len(profiles) > 1:
+            raise OptimizeError("the studies were run under different physics ("
+                                + "; ".join(sorted(s.describe() for s in profiles))
+                                + "); choose one with --physics (or --motor-model/--stall-torque)")
+        physics = profiles.pop()
+    return controller, physics
 
 
 
@@ -369,8 +369,8 @@ def rebuild_pairs(usable: list[StudyResult], physics: PhysicsProfile
 
     if physics.same_as(THESIS):
         return [], ""
-    mine = [r for r in usable if r.config.servo().same_as(physics)]
-    theirs = [r for r in usable if r.config.servo().same_as(THESIS)]
+    mine = [r for r in usable if r.config.profile().same_as(physics)]
+    theirs = [r for r in usable if r.config.profile().same_as(THESIS)]
 
     def key(r: StudyResult) -> tuple[Any, ...]:
         o = r.objective

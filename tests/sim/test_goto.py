@@ -86,7 +86,7 @@ def test_that_goto_reaches_the_goal_with_the_thesis_xi3_robot() -> None:
 
 def test_that_a_strong_servo_lets_the_thesis_xi0_robot_turn_and_the_realistic_one_does_not() -> None:
     strong = evaluate("nav-flat", XI0, Driver.of_gait("goto"), episodes=12, seed=0,
-                      servo=PhysicsProfile.of("velocity", 10.0))
+                      physics=PhysicsProfile.of("velocity", 10.0))
     realistic = evaluate("nav-flat", XI0, Driver.of_gait("goto"), episodes=12, seed=0)
     assert strong.mean_R > 0.7 and realistic.mean_R < 0.5, (strong.R, realistic.R)
 

@@ -77,13 +77,13 @@ def test_that_a_study_keeps_its_profile_and_old_studies_resume_as_the_thesis_wor
     objective, recipe = Objective({"nav-flat": 1.0}, 3.0), Recipe.make("standard", 4, 8)
     lab = PhysicsProfile(name="lab", free_speed=3.0, friction=0.6)
     config = StudyConfig.of(objective, recipe, 0, {}, "goto", lab)
-    assert config.physics is not None and config.servo().same_as(lab)
+    assert config.physics is not None and config.profile().same_as(lab)
     assert any(line.startswith("physics:") for line in config.differences(StudyConfig.of(objective, recipe, 0, {},
                                                                                           "goto", THESIS)))
     renamed = PhysicsProfile(**{**lab.to_json(), "name": "lab-copy", "latency": lab.latency})
     assert config.differences(StudyConfig.of(objective, recipe, 0, {}, "goto", renamed)) == []
     old = StudyConfig.of(objective, recipe, 0, {}, "goto")
-    assert old.physics is None and old.servo() is THESIS  # stored as before profiles existed
+    assert old.physics is None and old.profile() is THESIS  # stored as before profiles existed
     strong = StudyConfig.of(objective, recipe, 0, {}, "goto", PhysicsProfile.of("velocity", 10.0))
     assert strong.physics is None and (strong.motor_model, strong.stall_torque) == ("velocity", 10.0)
 
