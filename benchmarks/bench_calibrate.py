@@ -36,7 +36,9 @@ and the host, the agent and the calibration are not told it.
 Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
 runs its 40 trials in real time; the calibration about 5 minutes); the decision stage
 about 4 minutes per 100 trials and seed (its two studies). Every stage keeps its results
-in ``--out`` and a second run reuses them. The figures, with date and machine, go into ``docs/physics.md``.
+in ``--out`` and a second run reuses them; the summary, with each world's fitted profile and
+every decision's optima, goes to ``--json`` (``benchmarks/results/calibrate.json``). The
+figures, with date and machine, go into ``docs/physics.md``.
 """
 
 from __future__ import annotations
@@ -188,19 +190,24 @@ def paired(a: np.ndarray, b: np.ndarray) -> float:
     return p
 
 
-def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int = 480) -> tuple[int, int, int]:
+def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int = 480
+             ) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
     """Optimise under the fitted and under the true profile with each optimiser seed; each
     pair of optima on the same episodes under the truth. Returns (seeds where the fitted
     optimum ties or beats the true one, seeds, pairs of true-profile studies of
-    neighbouring seeds that tie each other): the last is the yardstick, how often the
-    optimiser agrees with itself at this budget when it is told the truth."""
+    neighbouring seeds that tie each other), the last the yardstick, how often the
+    optimiser agrees with itself at this budget when it is told the truth; and each seed's
+    optima, their objectives under the truth and the paired p."""
     fitted_w = [optimum(folder, folder / "fitted.json", f"fitted-s{s}", trials, s) for s in range(seeds)]
     true_w = [optimum(folder, world, f"true-s{s}", trials, s) for s in range(seeds)]
     f_fit = [objectives(w, world, folder, episodes) for w in fitted_w]
     f_true = [objectives(w, world, folder, episodes) for w in true_w]
     ties = 0
+    detail: list[dict[str, Any]] = []
     for s in range(seeds):
         p = paired(f_fit[s], f_true[s])
+        detail.append({"seed": s, "fitted_design": fitted_w[s], "fitted_objective": float(f_fit[s].mean()),
+                       "true_design": true_w[s], "true_objective": float(f_true[s].mean()), "p": p})
         better = f_fit[s].mean() > f_true[s].mean()
         ties += p > 0.05 or better
         verdict = "tie" if p > 0.05 else ("fitted better" if better else "FITTED WORSE")
@@ -215,7 +222,7 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
         agree += p > 0.05
         print(f"  yardstick: the true profile's optima of seeds {s} and {t}: {f_true[s].mean():.5f} against "
               f"{f_true[t].mean():.5f}, paired p = {p:.3g} ({'tie' if p > 0.05 else 'differ'})")
-    return ties, seeds, agree
+    return (ties, seeds, agree), detail
 
 
 def yardstick_pairs(seeds: int) -> int:
@@ -265,6 +272,8 @@ def main() -> int:
                     help="trials of each optimisation in the decision stage (40; 0 skips it)")
     ap.add_argument("--decision-seeds", type=int, default=3,
                     help="optimiser seeds of the decision stage, each optimising under both profiles (3)")
+    ap.add_argument("--json", type=Path, default=Path("benchmarks/results/calibrate.json"),
+                    help="where the results go, the fitted profiles included (benchmarks/results/calibrate.json)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"bench_calibrate {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
@@ -297,7 +306,9 @@ def main() -> int:
         row: dict[str, Any] = {"world": hidden["name"], "recovery": bool(ok and speed_ok), "minutes": seconds / 60}
         row.update(predict(folder, world, fitted, args, k))
         if args.decision_trials > 0:
-            row["decision"] = decision(folder, world, args.decision_trials, max(1, args.decision_seeds))
+            row["decision"], row["decisions"] = decision(folder, world, args.decision_trials,
+                                                         max(1, args.decision_seeds))
+        row.update(truth=truth.to_json(), fitted=fitted.to_json(), parameters=result["parameters"])
         rows.append(row)
     print("\n                                         closed loop          open loop            decision: seeds where")
     print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis)  fitted ties true   "
@@ -307,6 +318,12 @@ def main() -> int:
         print(f"{r['world']:21s} {'yes' if r['recovery'] else 'NO':8s} {r['minutes']:7.1f}  "
               f"{r.get('p_fitted', nan):9.3f} {r.get('p_thesis', nan):9.3f}  {r.get('q_fitted', nan):9.3f} "
               f"{r.get('q_thesis', nan):9.3f}  {_tally(r, 0)}  {_tally(r, 2)}")
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
+                                     f"({os.cpu_count()} cores, {platform.processor() or platform.machine()})",
+                                     "args": {k: str(v) for k, v in vars(args).items()}, "worlds": rows},
+                                    indent=2) + "\n")
+    print(f"wrote {args.json}")
     return 0 if all(r["recovery"] for r in rows) else 1
 
 
