@@ -29,12 +29,14 @@ the thesis's schedule: 1000 random designs, 1000 EI iterations, ``B = 240``) and
 ``efficient`` (trials screened on a small batch; the most promising designs are promoted
 to the full batch, reusing their screening episodes). The efficient recipe, and every
 front study, replace Optuna's GP on the objective by a GP on ``R`` alone with ``e(w)``
-exact (:mod:`~tumblebot.sim.optimize.surrogate`), which also chooses the promotions.
+exact (:mod:`~tumblebot.sim.optimize.surrogate`), which also chooses the promotions; it
+sees the log of the leg margin ``l - r`` instead of ``l``, so the cliff where the legs
+become too short to tumble is in one place for every body.
 
 Front studies (``Objective.front``): one study for several ``ξ`` at once. Its acquisition
 serves every finite ``ξ`` from the same GP on ``R`` (each proposal goes where some ξ has
-the most to gain; the GP sees the log of the leg margin ``l - r`` instead of ``l``), and
-:func:`front_optima` reads the optimum of each ``ξ`` from its full-batch designs.
+the most to gain), and :func:`front_optima` reads the optimum of each ``ξ`` from its
+full-batch designs.
 
 Infeasible designs. Legs shorter than the pivot radius (``l < r``) cannot lift the body
 past its balance point. Such trials cost no episodes; they are recorded with the

@@ -108,7 +108,7 @@ def promotion_scores(study: optuna.Study, objective: Objective, xi: float) -> di
     in ``R``), :func:`screen_scores`."""
     from tumblebot.sim.optimize import surrogate
 
-    posterior = surrogate.study_posterior(study, objective.weights, xi, margin=bool(objective.front)) \
+    posterior = surrogate.study_posterior(study, objective.weights, xi) \
         if objective.variant == "thesis" else {}
     return posterior or screen_scores(study, objective.at(xi))
 

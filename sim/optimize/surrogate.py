@@ -58,11 +58,14 @@ MARGIN_FLOOR = 0.002
 
 
 def margin_features(X: np.ndarray) -> np.ndarray:
-    """GP inputs of a front study: ``x, y, z`` scaled to the unit cube, and instead of ``l``
-    the log of the leg margin ``l - r``, scaled to [0, 1] over the bounds. R falls off a
-    cliff as the legs shorten toward the pivot radius (the least-energy design sits just
-    above it); on a log-margin axis that cliff is a gentle slope, so one short-legged result
-    no longer condemns the whole short-legged region a stationary kernel would lump with it."""
+    """The GP's inputs: ``x, y, z`` scaled to the unit cube, and instead of ``l`` the log of
+    the leg margin ``l - r``, scaled to [0, 1] over the bounds. R falls off a cliff as the
+    legs shorten toward the pivot radius (the least-energy design sits just above it), at
+    an ``l`` that depends on the body (``r`` is set by ``y`` and ``z``). On a log-margin axis
+    that cliff is a gentle slope in one place, so a few poor results beside the cliff of
+    other bodies no longer condemn every short leg: with ``l`` itself, the GP (whose length
+    scales in ``x, y, z`` a few dozen noisy results cannot resolve) read them as "short legs
+    are bad" and a study could settle on legs twice the best length."""
     U = to_unit(X).copy()
     r = np.hypot(np.asarray(X)[:, 1] / 2.0, np.asarray(X)[:, 2] / 2.0)
     lo, hi = math.log(MARGIN_FLOOR), math.log(SPAN[3] + MARGIN_FLOOR)
@@ -257,17 +260,15 @@ def screening_bias(obs: Sequence[Observation], U: np.ndarray, noise: np.ndarray)
     return bias, var
 
 
-def fit(obs: Sequence[Observation], start: Hyper | None = None, margin: bool = False) -> RModel:
-    """The GP on the observations, each screen corrected by :func:`screening_bias`;
-    ``margin``: on :func:`margin_features` (front studies) instead of the unit cube. The
-    model remembers its features (``model.features``)."""
-    features = margin_features if margin else to_unit
-    U = features(np.array([o.design for o in obs]))
+def fit(obs: Sequence[Observation], start: Hyper | None = None) -> RModel:
+    """The GP on the observations (on :func:`margin_features`), each screen corrected by
+    :func:`screening_bias`. The model remembers its features (``model.features``)."""
+    U = margin_features(np.array([o.design for o in obs]))
     noise = batch_noise(obs)
     bias, bias_var = screening_bias(obs, U, noise)
     y = np.array([float(np.mean(o.S)) for o in obs]) - bias
     model = RModel(U, y, noise + bias_var, start)
-    model.features = features
+    model.features = margin_features
     return model
 
 
@@ -280,15 +281,14 @@ def posterior_objective(model: RModel, obs: Sequence[Observation], xi: float) ->
     return {o.number: float(m / s) for o, m, s in zip(obs, mu, scale, strict=True)}
 
 
-def study_posterior(study: optuna.Study, weights: dict[str, float], xi: float, margin: bool = False
-                    ) -> dict[int, float]:
+def study_posterior(study: optuna.Study, weights: dict[str, float], xi: float) -> dict[int, float]:
     """Each feasible finished trial's posterior-mean objective at ``ξ`` under the GP fitted to
     every episode of ``study`` (:func:`observations`, :func:`fit`), or ``{}`` before three
     designs have results."""
     obs = observations(study, weights)
     if len(obs) < 3:
         return {}
-    return posterior_objective(fit(obs, margin=margin), obs, xi)
+    return posterior_objective(fit(obs), obs, xi)
 
 
 def propose(model: RModel, obs: Sequence[Observation], xis: float | Sequence[float], rng: np.random.Generator,
@@ -359,9 +359,8 @@ class RSampler(optuna.samplers.BaseSampler):
     from scratch every 10th fit and warm-started in between."""
 
     def __init__(self, weights: dict[str, float], targets: Sequence[float], startup: int,
-                 independent: optuna.samplers.BaseSampler, seed: int, margin: bool = False) -> None:
+                 independent: optuna.samplers.BaseSampler, seed: int) -> None:
         self.weights, self.targets, self.startup = dict(weights), [float(x) for x in targets], startup
-        self.margin = margin  #: fit on :func:`margin_features` (front studies)
         self.independent = independent
         self.rng = np.random.default_rng(seed)
         self.hyper: Hyper | None = None
@@ -376,7 +375,7 @@ class RSampler(optuna.samplers.BaseSampler):
         obs = observations(study, self.weights)
         if len(obs) < max(self.startup, 3):
             return {}
-        model = fit(obs, self.hyper if self.fits % 10 else None, self.margin)
+        model = fit(obs, self.hyper if self.fits % 10 else None)
         self.hyper, self.fits = model.hyper, self.fits + 1
         pending = np.array([[t.params[n] for n in PARAMETERS] for t in
                             study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))

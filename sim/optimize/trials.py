@@ -57,8 +57,7 @@ def make_sampler(recipe: Recipe, seed: int, process_salt: int, objective: Object
 
     salted = int(np.random.SeedSequence([seed, process_salt]).generate_state(1)[0])
     if objective is not None and recipe.surrogate(objective) == "R":
-        return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted,
-                        margin=bool(objective.front))
+        return RSampler(objective.weights, objective.targets, recipe.startup, _Startup(seed=seed), salted)
     return optuna.samplers.GPSampler(seed=salted, independent_sampler=_Startup(seed=seed),
                                      n_startup_trials=recipe.startup, deterministic_objective=False,
                                      warn_independent_sampling=False)
