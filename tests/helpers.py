@@ -17,6 +17,13 @@ def tb(*args: str, timeout: float = 1200, env: Mapping[str, str] | None = None) 
                           env=None if env is None else {**os.environ, **env})
 
 
+def tb_ok(*args: str, timeout: float = 1200, env: Mapping[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """:func:`tb`, which must succeed (its stderr is the failure's message)."""
+    run = tb(*args, timeout=timeout, env=env)
+    assert run.returncode == 0, run.stderr
+    return run
+
+
 def interruptible() -> None:
     """``preexec_fn`` for a child a test will Ctrl-C: SIGINT as in a terminal. A runner that
     starts the tests in the background (``nohup``, ``&``) has SIGINT ignored, and a child

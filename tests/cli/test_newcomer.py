@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.calibration_logs import write_set
-from tests.helpers import tb
+from tests.helpers import tb, tb_ok
 from tumblebot.sim.world.physics import THESIS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -74,17 +74,15 @@ def test_that_argparse_errors_are_the_usage_then_one_error_line_as_documented_re
                                                ("nav-flat", "median final distance to the goal (the origin)")])
 def test_that_evaluate_names_the_distance_it_prints_regression_incline_distance_to_the_origin(
         task: str, wording: str) -> None:
-    run = tb("evaluate", "--task", task, "--design", "0.292,0.129,0.098,0.136", "--episodes", "2", "--seed", "0",
-             "--gait", "forward")
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("evaluate", "--task", task, "--design", "0.292,0.129,0.098,0.136", "--episodes", "2", "--seed", "0",
+                "--gait", "forward")
     assert wording in run.stdout
 
 
 def test_that_one_trial_gets_no_confidence_interval_regression_ci_of_a_single_value(tmp_path: Path) -> None:
     folder = write_set(tmp_path / "one", THESIS, 1)
-    run = tb("trial", "analyze", str(folder), "--baseline-mean", "0.433", "--baseline-sd", "0.25",
-             "--baseline-n", "100")
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("trial", "analyze", str(folder), "--baseline-mean", "0.433", "--baseline-sd", "0.25",
+                "--baseline-n", "100")
     assert "no CI from one trial" in run.stdout and "no t-test" in run.stdout
     assert "(0." not in run.stdout.split("mean setpoint error", 1)[1].split("\n", 1)[0].replace("(no CI", "")
     result = json.loads(tb("trial", "analyze", str(folder), "--json").stdout)

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from tests.helpers import tb
+from tests.helpers import tb, tb_ok
 from tumblebot.sim.hardware.layout import MARKERS
 from tumblebot.sim.hardware.package import bom
 from tumblebot.sim.world.catalogue import CatalogueError, catalogue, default_servo, servo
@@ -69,8 +69,7 @@ def read_dxf(path: Path) -> list[dict[str, Any]]:
 def package(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple[Design, Path]:
     design = DESIGNS[request.param]
     out = tmp_path_factory.mktemp(request.param) / "pkg"
-    run = tb("build", "--design", ",".join(map(str, design)), "-o", str(out))
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("build", "--design", ",".join(map(str, design)), "-o", str(out))
     assert "wrote the fabrication package" in run.stdout
     return Design(*design), out
 
@@ -186,8 +185,7 @@ def test_that_one_constant_moves_the_parts_list_the_mass_and_the_energy_together
 @pytest.mark.slow
 def test_that_build_with_another_servo_draws_its_mount_and_weighs_its_mass(tmp_path: Path) -> None:
     out = tmp_path / "fs90r"
-    run = tb("build", "--design", "0.292,0.129,0.098,0.136", "--servo", "feetech-fs90r", "-o", str(out))
-    assert run.returncode == 0, run.stderr
+    tb_ok("build", "--design", "0.292,0.129,0.098,0.136", "--servo", "feetech-fs90r", "-o", str(out))
     mount = read_dxf(out / "cut" / "motor_mount.dxf")
     outline = max((e for e in mount if e["type"] == "LWPOLYLINE"), key=lambda e: max(e["xs"]) - min(e["xs"]))
     width = max(outline["xs"]) - min(outline["xs"])

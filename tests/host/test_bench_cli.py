@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import tb
+from tests.helpers import tb, tb_ok
 from tumblebot.host.bench import body_roll, motion, resting_frame
 from tumblebot.host.emulator import EmulatedUno
 from tumblebot.host.mocap import Pose
@@ -25,11 +25,9 @@ def test_that_trim_shows_sets_and_persists_the_trims_in_the_firmware(
         uno_and_agent: tuple[EmulatedUno, str, Path]) -> None:
     uno, address, key = uno_and_agent
     link = ["--agent", address, "--key", str(key)]
-    shown = tb("trim", *link)
-    assert shown.returncode == 0, shown.stderr
+    shown = tb_ok("trim", *link)
     assert shown.stdout.strip() == "trims: right 1500 µs +1, left 1500 µs -1"
-    nudged = tb("trim", *link, "--servo", "right", "--nudge", "12")
-    assert nudged.returncode == 0, nudged.stderr
+    nudged = tb_ok("trim", *link, "--servo", "right", "--nudge", "12")
     assert "right servo: neutral 1500 → 1512 µs, direction +1 → +1" in nudged.stdout
     flipped = tb("trim", *link, "--servo", "left", "--neutral", "1490", "--direction", "+1", "--json")
     assert json.loads(flipped.stdout) == {"servo": "left", "before": {"neutral_us": 1500, "direction": -1},

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.calibration_logs import write_set
-from tests.helpers import interruptible, tb
+from tests.helpers import interruptible, tb, tb_ok
 from tumblebot.host.calibrate import cache_path
 from tumblebot.sim.calibration import MIN_DESIGN_POINTS, Settings
 from tumblebot.sim.world.physics import PhysicsProfile
@@ -80,8 +80,7 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
     kept = len(cache_path(out).read_text().splitlines())
     assert kept >= 5
 
-    done = tb(*cmd[3:])
-    assert done.returncode == 0, done.stderr
+    done = tb_ok(*cmd[3:])
     result = json.loads(done.stdout)
     assert set(result) >= {"parameters", "fit"}
     for name, p in result["parameters"].items():

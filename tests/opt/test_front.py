@@ -10,7 +10,7 @@ import numpy as np
 import optuna
 import pytest
 
-from tests.helpers import tb
+from tests.helpers import tb, tb_ok
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -123,9 +123,9 @@ def test_that_bad_front_input_gets_one_clear_error_and_creates_nothing(tmp_path:
 def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_path: Path) -> None:
     db = tmp_path / "front.db"
     storage = f"sqlite:///{db}"
-    run = tb("optimize", "--tasks", "nav-flat", "--front", "--recipe", "efficient", "--trials", "16", "--batch",
-             "12", "--startup", "6", "--storage", storage, "--quiet", "--json", str(tmp_path / "s.json"), timeout=900)
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("optimize", "--tasks", "nav-flat", "--front", "--recipe", "efficient", "--trials", "16", "--batch",
+                "12", "--startup", "6", "--storage", storage, "--quiet", "--json", str(tmp_path / "s.json"),
+                timeout=900)
     assert "optimum of each ξ" in run.stdout and "front for ξ=0,1,3,inf" in run.stderr
     summary = json.loads((tmp_path / "s.json").read_text())
     assert set(summary["front"]) == {"0", "1", "3", "inf"}
@@ -142,16 +142,14 @@ def test_that_one_front_study_answers_every_xi_and_the_report_reads_them(tmp_pat
         assert optima[xi].batch == 12
     # the report: one Table 3.1 row per ξ asked for, and the front plotted
     out = tmp_path / "report"
-    rep = tb("report", "--storage", storage, "--study", "nav-flat=1-front", "--xi", "0,3,inf", "-o", str(out),
-             "--episodes", "4", "--slice-points", "2", "--quiet", timeout=900)
-    assert rep.returncode == 0, rep.stderr
+    tb_ok("report", "--storage", storage, "--study", "nav-flat=1-front", "--xi", "0,3,inf", "-o", str(out),
+          "--episodes", "4", "--slice-points", "2", "--quiet", timeout=900)
     data = json.loads((out / "report.json").read_text())
     assert [row["xi"] for row in data["table31"]] == ["0", "3", "inf"]
     assert (out / "front.png").is_file() and "front.png" in (out / "report.md").read_text()
     # --xi is for front studies only
-    single = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
-                "--study", "one", "--quiet", timeout=900)
-    assert single.returncode == 0, single.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
+          "--study", "one", "--quiet", timeout=900)
     bad = tb("report", "--storage", storage, "--study", "one", "--xi", "0", "-o", str(tmp_path / "r2"), "--quiet",
              timeout=900)
     assert bad.returncode == 2 and "front studies" in bad.stderr and "Traceback" not in bad.stderr

@@ -15,7 +15,7 @@ import numpy as np
 import optuna
 import pytest
 
-from tests.helpers import interruptible, tb
+from tests.helpers import interruptible, tb, tb_ok
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -107,28 +107,24 @@ def test_that_optimize_completes_resumes_and_reports(tmp_path: Path) -> None:
     db = tmp_path / "X.db"
     cmd = ["optimize", "--tasks", "nav-flat=1", "--xi", "3", "--trials", "12", "--batch", "8",
            "--storage", f"sqlite:///{db}", "--study", "s", "--seed", "0"]
-    first = tb(*cmd)
-    assert first.returncode == 0, first.stderr
+    first = tb_ok(*cmd)
     assert "best robot" in first.stdout
     study = load(db, "s")
     assert counted_trials(study) == 12
     numbers = [t.number for t in study.trials]
     spent = episode_count(study)
 
-    again = tb(*cmd)  # the same command resumes: nothing to add, nothing redone
-    assert again.returncode == 0, again.stderr
+    again = tb_ok(*cmd)  # the same command resumes: nothing to add, nothing redone
     assert "(0 episodes this run)" in again.stdout
     study = load(db, "s")
     assert [t.number for t in study.trials] == numbers and episode_count(study) == spent
 
-    more = tb(*[c if c != "12" else "14" for c in cmd])  # asking for more trials continues the study
-    assert more.returncode == 0, more.stderr
+    tb_ok(*[c if c != "12" else "14" for c in cmd])  # asking for more trials continues the study
     study = load(db, "s")
     assert counted_trials(study) == 14 and [t.number for t in study.trials][:len(numbers)] == numbers
 
     out = tmp_path / "DIR"
-    rep = tb("report", "--storage", f"sqlite:///{db}", "--study", "s", "-o", str(out))
-    assert rep.returncode == 0, rep.stderr
+    tb_ok("report", "--storage", f"sqlite:///{db}", "--study", "s", "-o", str(out))
     text = (out / "report.md").read_text()
     for heading in ("Table 3.1 equivalent", "Table 3.2 equivalent", "Universal optimum", "Compared with the thesis"):
         assert heading in text
@@ -147,9 +143,8 @@ def test_that_optimize_completes_resumes_and_reports(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_that_infeasible_designs_are_recorded_cost_nothing_and_are_never_the_optimum(tmp_path: Path) -> None:
     db = tmp_path / "i.db"
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "30", "--batch", "2", "--startup", "12",
-             "--storage", f"sqlite:///{db}", "--study", "i", "--quiet")
-    assert run.returncode == 0, run.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "30", "--batch", "2", "--startup", "12",
+          "--storage", f"sqlite:///{db}", "--study", "i", "--quiet")
     study = load(db, "i")
     infeasible = [t for t in study.trials if "infeasible" in t.user_attrs]
     assert infeasible, "seed 0 draws some designs with l < r among its start-up designs"
@@ -165,9 +160,8 @@ def test_that_infeasible_designs_are_recorded_cost_nothing_and_are_never_the_opt
 
 def test_that_xi_infinity_minimises_e_without_any_episode(tmp_path: Path) -> None:
     db = tmp_path / "inf.db"
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "25", "--batch", "240",
-             "--storage", f"sqlite:///{db}", "--study", "inf", "--quiet")
-    assert run.returncode == 0, run.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "25", "--batch", "240",
+          "--storage", f"sqlite:///{db}", "--study", "inf", "--quiet")
     study = load(db, "inf")
     assert episode_count(study) == 0
     best = best_candidate(study)
@@ -178,9 +172,8 @@ def test_that_xi_infinity_minimises_e_without_any_episode(tmp_path: Path) -> Non
 @pytest.mark.slow
 def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_path: Path) -> None:
     db = tmp_path / "e.db"
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--recipe", "efficient", "--trials", "24",
-             "--batch", "60", "--storage", f"sqlite:///{db}", "--study", "e", "--quiet", "--workers", "2")
-    assert run.returncode == 0, run.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "3", "--recipe", "efficient", "--trials", "24",
+          "--batch", "60", "--storage", f"sqlite:///{db}", "--study", "e", "--quiet", "--workers", "2")
     study = load(db, "e")
     screened = [t for t in study.trials if "R" in t.user_attrs]
     assert all(len(t.user_attrs["R"]["nav-flat"]) == 4 for t in screened)
@@ -375,13 +368,11 @@ def test_that_two_worker_processes_cooperate_on_one_postgresql_study(postgres_ur
 def test_that_the_report_checks_the_universal_optimum_across_tasks(tmp_path: Path) -> None:
     storage = f"sqlite:///{tmp_path / 'u.db'}"
     for task in ("nav-flat", "distance-flat"):
-        run = tb("optimize", "--tasks", task, "--xi", "0", "--trials", "4", "--batch", "2", "--storage", storage,
-                 "--study", task, "--quiet")
-        assert run.returncode == 0, run.stderr
+        tb_ok("optimize", "--tasks", task, "--xi", "0", "--trials", "4", "--batch", "2", "--storage", storage,
+              "--study", task, "--quiet")
     out = tmp_path / "rep"
-    rep = tb("report", "--storage", storage, "--study", "nav-flat", "--study", "distance-flat", "-o", str(out),
-             "--episodes", "2", "--slice-points", "2", "--quiet")
-    assert rep.returncode == 0, rep.stderr
+    tb_ok("report", "--storage", storage, "--study", "nav-flat", "--study", "distance-flat", "-o", str(out),
+          "--episodes", "2", "--slice-points", "2", "--quiet")
     uni = json.loads((out / "report.json").read_text())["universal"]
     assert uni["checked"] and set(uni["matrix"]) == {"nav-flat", "distance-flat"}
     for task, row in uni["matrix"].items():  # each task's own optimum is the reference of its row
@@ -436,9 +427,8 @@ def test_that_report_on_a_mistyped_sqlite_path_creates_no_database(tmp_path: Pat
 
 
 def test_that_xi_infinity_needs_no_batch(tmp_path: Path) -> None:
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage",
-             f"sqlite:///{tmp_path / 'i.db'}", "--study", "i", "--quiet")
-    assert run.returncode == 0, run.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage",
+          f"sqlite:///{tmp_path / 'i.db'}", "--study", "i", "--quiet")
 
 
 def test_that_evaluate_checks_xi_before_the_episodes(tmp_path: Path) -> None:
@@ -452,16 +442,14 @@ def test_that_a_study_records_its_controller_and_servo_and_refuses_another(tmp_p
     storage = f"sqlite:///{tmp_path / 'g.db'}"
     base = ["optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "2", "--batch", "2", "--storage", storage,
             "--study", "g", "--quiet"]
-    run = tb(*base, "--gait", "goto", "--motor-model", "velocity", "--stall-torque", "10")
-    assert run.returncode == 0, run.stderr
+    tb_ok(*base, "--gait", "goto", "--motor-model", "velocity", "--stall-torque", "10")
     config = load(tmp_path / "g.db", "g").user_attrs["tumblebot"]
     assert (config["controller"], config["motor_model"], config["stall_torque"]) == ("goto", "velocity", 10.0)
     for other in ([], ["--gait", "goto"], ["--gait", "goto", "--motor-model", "velocity"]):
         refused = tb(*base, *other)
         assert refused.returncode == 2 and "different objective" in refused.stderr, (other, refused.stderr)
-    rep = tb("report", "--storage", storage, "--study", "g", "-o", str(tmp_path / "r"), "--episodes", "2",
-             "--slice-points", "2", "--quiet")
-    assert rep.returncode == 0, rep.stderr
+    tb_ok("report", "--storage", storage, "--study", "g", "-o", str(tmp_path / "r"), "--episodes", "2",
+          "--slice-points", "2", "--quiet")
     data = json.loads((tmp_path / "r" / "report.json").read_text())
     assert data["controller"] == "goto" and data["servo"]["motor_model"] == "velocity"
     assert data["servo"]["stall_torque"] == 10.0 and data["servo"]["free_speed"] == 3.67  # the whole profile
@@ -487,16 +475,14 @@ def test_that_a_study_made_before_controllers_were_recorded_still_loads_as_polic
     study.set_user_attr("tumblebot", raw)  # as a study of the last release stored it
     config = load_config(load(tmp_path / "old.db", "old"))
     assert config is not None and config.controller == "policy" and config.motor_model == "dc"
-    again = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
-               "--study", "old", "--quiet")
-    assert again.returncode == 0, again.stderr
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
+          "--study", "old", "--quiet")
 
 
 def test_that_optimize_json_counts_the_trials_the_terminal_prints(tmp_path: Path) -> None:
     out = tmp_path / "s.json"
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "6", "--storage",
-             f"sqlite:///{tmp_path / 'j.db'}", "--study", "j", "--json", str(out), "--quiet")
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "6", "--storage",
+                f"sqlite:///{tmp_path / 'j.db'}", "--study", "j", "--json", str(out), "--quiet")
     printed = int(run.stdout.split(" trials in study")[0].split()[-1])
     summary = json.loads(out.read_text())
     assert summary["trials"] == printed == 6
@@ -533,14 +519,12 @@ def test_that_the_storage_password_never_appears_in_output_or_report_files(postg
     """The lab's database password, given in the URL, is shown and stored as ``***``."""
     secret = "s3cret-Pa55"
     url = postgres_url.replace("tumblebot@", f"tumblebot:{secret}@")  # trust auth: the server ignores it
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "2", "--batch", "2", "--storage", url,
-             "--study", "secret", "--gait", "goto", "--json", str(tmp_path / "summary.json"))
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "2", "--batch", "2", "--storage", url,
+                "--study", "secret", "--gait", "goto", "--json", str(tmp_path / "summary.json"))
     assert "tumblebot:***@" in run.stdout + run.stderr
     out = tmp_path / "rep"
-    rep = tb("report", "--storage", url, "--study", "secret", "-o", str(out), "--episodes", "2", "--slice-points",
-             "2", "--quiet")
-    assert rep.returncode == 0, rep.stderr
+    rep = tb_ok("report", "--storage", url, "--study", "secret", "-o", str(out), "--episodes", "2", "--slice-points",
+                "2", "--quiet")
     assert json.loads((out / "report.json").read_text())["storage"].startswith("postgresql://tumblebot:***@")
     refused = tb("optimize", "--tasks", "nav-flat", "--trials", "2", "--batch", "2", "--study", "x",
                  "--storage", f"postgresql://tumblebot:{secret}@127.0.0.1:1/none")  # nothing listens there
@@ -567,13 +551,11 @@ def test_that_the_report_says_whether_the_thesis_optimum_is_still_the_robot_to_b
     lab = tmp_path / "lab.json"
     lab.write_text('{"name": "lab", "free_speed": 4.5, "stall_torque": 0.4, "friction": 0.6}')
     for study, extra in (("thesis-world", []), ("lab-world", ["--physics", str(lab)])):
-        run = tb("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "4", "--batch", "2", "--gait", "goto",
-                 "--storage", storage, "--study", study, "--quiet", *extra)
-        assert run.returncode == 0, run.stderr
+        tb_ok("optimize", "--tasks", "nav-flat", "--xi", "0", "--trials", "4", "--batch", "2", "--gait", "goto",
+              "--storage", storage, "--study", study, "--quiet", *extra)
     out = tmp_path / "rep"
-    rep = tb("report", "--storage", storage, "--study", "thesis-world", "--study", "lab-world", "--physics", str(lab),
-             "--gait", "goto", "-o", str(out), "--episodes", "4", "--slice-points", "2", "--quiet")
-    assert rep.returncode == 0, rep.stderr
+    tb_ok("report", "--storage", storage, "--study", "thesis-world", "--study", "lab-world", "--physics", str(lab),
+          "--gait", "goto", "-o", str(out), "--episodes", "4", "--slice-points", "2", "--quiet")
     data = json.loads((out / "report.json").read_text())
     [row] = data["rebuild"]
     assert row["thesis_study"] == "thesis-world" and row["physics_study"] == "lab-world"
@@ -583,9 +565,8 @@ def test_that_the_report_says_whether_the_thesis_optimum_is_still_the_robot_to_b
     text = (out / "report.md").read_text()
     assert "## Would I still build it? (under `lab`)" in text and row["verdict"] in text
     # without a study of the profile's world, the section says what is missing
-    alone = tb("report", "--storage", storage, "--study", "thesis-world", "--physics", str(lab), "--gait", "goto",
-               "-o", str(tmp_path / "rep2"), "--episodes", "2", "--slice-points", "2", "--quiet")
-    assert alone.returncode == 0, alone.stderr
+    tb_ok("report", "--storage", storage, "--study", "thesis-world", "--physics", str(lab), "--gait", "goto",
+          "-o", str(tmp_path / "rep2"), "--episodes", "2", "--slice-points", "2", "--quiet")
     text = (tmp_path / "rep2" / "report.md").read_text()
     assert "Not answered: none of these studies was optimised under lab" in text
 
@@ -597,26 +578,22 @@ def test_that_a_worker_finishing_first_says_trials_are_still_running_regression_
     db = tmp_path / "s.db"
     args = ("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--trials", "4", "--batch", "4",
             "--recipe", "standard", "--storage", f"sqlite:///{db}", "--study", "s", "--seed", "0", "--quiet")
-    first = tb(*args)
-    assert first.returncode == 0, first.stderr
+    first = tb_ok(*args)
     assert "still running" not in first.stdout and "best robot: trial" in first.stdout
     elsewhere = load(db, "s").ask()  # another worker's trial, still running
-    again = tb(*args)
-    assert again.returncode == 0, again.stderr
+    again = tb_ok(*args)
     assert f"1 trial still running in other workers ({elsewhere.number})" in again.stdout
     assert "best robot so far: trial" in again.stdout
 
 
 def test_that_the_printed_optimum_reproduces_its_e_regression_rounded_design_gave_another_e(tmp_path: Path) -> None:
     """optimize printed e = 3.591 for an optimum whose rounded numbers give 3.586 in power."""
-    run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--trials", "3", "--batch", "4",
-             "--recipe", "standard", "--storage", f"sqlite:///{tmp_path / 'e.db'}", "--study", "e", "--seed", "0",
-             "--quiet")
-    assert run.returncode == 0, run.stderr
+    run = tb_ok("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--trials", "3", "--batch", "4",
+                "--recipe", "standard", "--storage", f"sqlite:///{tmp_path / 'e.db'}", "--study", "e", "--seed", "0",
+                "--quiet")
     printed_e = next(ln for ln in run.stdout.splitlines() if ln.strip().startswith("e(w) ="))
     exact = next(ln for ln in run.stdout.splitlines() if "exact design: tumblebot power" in ln)
-    power = tb("power", *exact.split("tumblebot power", 1)[1].split(), "--json")
-    assert power.returncode == 0, power.stderr
+    power = tb_ok("power", *exact.split("tumblebot power", 1)[1].split(), "--json")
     assert f"e(w) = {json.loads(power.stdout)['e']:.3f} W/m" in printed_e
 
 
@@ -640,8 +617,7 @@ def test_that_a_study_pinned_to_a_policy_file_resumes_and_reports_only_with_that
     storage = f"sqlite:///{tmp_path / 'p.db'}"
     base = ["optimize", "--tasks", "nav-flat", "--xi", "3", "--trials", "2", "--batch", "2", "--storage", storage,
             "--study", "p", "--quiet"]
-    run = tb(*base, "--policy", f"nav-flat={old}")
-    assert run.returncode == 0, run.stderr
+    tb_ok(*base, "--policy", f"nav-flat={old}")
     assert load(tmp_path / "p.db", "p").user_attrs["tumblebot"]["policies"] == {"nav-flat": sha256_of(old)}
     refused = tb(*base)  # the bundled policy is not the one the study ran with
     assert refused.returncode == 2 and "different objective" in refused.stderr, refused.stderr
@@ -651,8 +627,7 @@ def test_that_a_study_pinned_to_a_policy_file_resumes_and_reports_only_with_that
     err = stale.stderr.strip().splitlines()
     assert stale.returncode == 2 and len(err) == 1 and "--policy nav-flat=FILE" in err[0], stale.stderr
     assert not (tmp_path / "stale" / "report.md").exists()
-    pinned = tb(*report, "-o", str(tmp_path / "pinned"), "--policy", f"nav-flat={old}")
-    assert pinned.returncode == 0, pinned.stderr
+    tb_ok(*report, "-o", str(tmp_path / "pinned"), "--policy", f"nav-flat={old}")
     data = json.loads((tmp_path / "pinned" / "report.json").read_text())
     assert data["policies"] == {"nav-flat": sha256_of(old)}
     assert tb(*report, "-o", str(tmp_path / "goto"), "--gait", "goto").returncode == 0  # another controller: no pin
