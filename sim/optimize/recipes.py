@@ -72,5 +72,6 @@ class Recipe:
         """Which GP proposes the designs: ``"R"`` (each task's R modelled, e(w) exact: the
         efficient recipe, and every front study) or ``"logEI"`` (Optuna's GP-logEI on the
         noisy objective)."""
-        models_R = objective is not None and objective.tasks and (self.name == "efficient" or objective.front)
-        return "R" if models_R else "logEI"
+        if objective is None or not objective.tasks:
+            return "logEI"
+        return "R" if self.name == "efficient" or objective.front else "logEI"
