@@ -233,9 +233,10 @@ class _BestSoFar:
         self.best: Candidate | None = None
 
     def __call__(self) -> Candidate | None:
-        key = frozenset(c.trial for c in full_batch_results(self.study))
+        cands = full_batch_results(self.study)
+        key = frozenset(c.trial for c in cands)
         if key != self.key:
-            self.key, self.best = key, best_candidate(self.study)
+            self.key, self.best = key, best_candidate(self.study, cands)
         return self.best
 
 

@@ -166,13 +166,13 @@ def front_optima(study: optuna.Study, xis: tuple[float, ...]) -> dict[float, Can
     return out
 
 
-def best_candidate(study: optuna.Study) -> Candidate | None:
+def best_candidate(study: optuna.Study, cands: list[Candidate] | None = None) -> Candidate | None:
     """The study's optimum (None before any design has its full batch).
 
-    Of the designs with a full batch: in a study of the efficient recipe (single ``ξ``, the
-    thesis wrapper), the one the GP on ``R`` rates best (:func:`posterior_ratings`); in
-    any other, the best full batch."""
-    cands = full_batch_results(study)
+    Of the designs with a full batch (``cands``, if already read: :func:`full_batch_results`):
+    in a study of the efficient recipe (single ``ξ``, the thesis wrapper), the one the GP on
+    ``R`` rates best (:func:`posterior_ratings`); in any other, the best full batch."""
+    cands = full_batch_results(study) if cands is None else cands
     if not cands:
         return None
     rated = posterior_ratings(study, [c.trial for c in cands])
