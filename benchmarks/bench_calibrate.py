@@ -209,7 +209,7 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
         detail.append({"seed": s, "fitted_design": fitted_w[s], "fitted_objective": float(f_fit[s].mean()),
                        "true_design": true_w[s], "true_objective": float(f_true[s].mean()), "p": p})
         better = f_fit[s].mean() > f_true[s].mean()
-        ties += p > 0.05 or better
+        ties += int(p > 0.05 or bool(better))
         verdict = "tie" if p > 0.05 else ("fitted better" if better else "FITTED WORSE")
         print(f"  decision, seed {s} ({trials} trials each, {episodes} paired episodes under the true profile): "
               f"optimum under the fitted profile {tuple(round(v, 3) for v in fitted_w[s])} objective "
@@ -219,10 +219,17 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
     for s in range(yardstick_pairs(seeds)):
         t = (s + 1) % seeds
         p = paired(f_true[s], f_true[t])
-        agree += p > 0.05
+        agree += int(p > 0.05)
         print(f"  yardstick: the true profile's optima of seeds {s} and {t}: {f_true[s].mean():.5f} against "
               f"{f_true[t].mean():.5f}, paired p = {p:.3g} ({'tie' if p > 0.05 else 'differ'})")
     return (ties, seeds, agree), detail
+
+
+def _plain(o: object) -> object:
+    """A NumPy scalar as the Python number it holds, for ``json.dumps``."""
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
 def yardstick_pairs(seeds: int) -> int:
@@ -322,7 +329,7 @@ def main() -> int:
     args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
                                      f"({os.cpu_count()} cores, {platform.processor() or platform.machine()})",
                                      "args": {k: str(v) for k, v in vars(args).items()}, "worlds": rows},
-                                    indent=2) + "\n")
+                                    indent=2, default=_plain) + "\n")
     print(f"wrote {args.json}")
     return 0 if all(r["recovery"] for r in rows) else 1
 

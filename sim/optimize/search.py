@@ -223,6 +223,12 @@ def optimize(study: optuna.Study, objective: Objective, recipe: Recipe, runner: 
     return progress()
 
 
+#: Study attribute: how many trials the study held when its final promotions were done. A
+#: finished study run again does not promote again (each promotion moves the GP, so the
+#: designs it ranks on top can change and the optimum with them); one given more trials does.
+FINAL_PROMOTIONS_AT = "final_promotions_at"
+
+
 class _BestSoFar:
     """:func:`best_candidate` for the progress line, chosen again only when the designs with
     a full batch change (the choice fits the GP, which is too slow to do after every trial)."""
@@ -243,14 +249,18 @@ class _BestSoFar:
 def _final_promotions(study: optuna.Study, objective: Objective, recipe: Recipe, runner: EpisodeRunner | None,
                       seed: int, safe_point: Callable[[], None], affordable: Callable[[], bool]) -> int:
     """At the end, for each target ξ: promote until its ``final_promotions`` most promising
-    designs have their full batch (or the budget is spent). Returns episodes run."""
+    designs have their full batch (or the budget is spent), once for a given number of
+    trials (:data:`FINAL_PROMOTIONS_AT`). Returns episodes run."""
     episodes = 0
+    if study.user_attrs.get(FINAL_PROMOTIONS_AT) == counted_trials(study):
+        return 0
     for xi in objective.targets:
         for _ in range(recipe.final_promotions):
             safe_point()
             if _top_is_promoted(study, objective, recipe.final_promotions, xi) or not affordable():
                 break
             episodes += _promote(study, objective, recipe, runner, seed, safe_point, xi)
+    study.set_user_attr(FINAL_PROMOTIONS_AT, counted_trials(study))
     return episodes
 
 

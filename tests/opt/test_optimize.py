@@ -193,6 +193,26 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     assert best.trial == top
 
 
+@pytest.mark.slow
+def test_that_a_finished_efficient_study_run_again_adds_nothing(tmp_path: Path) -> None:
+    """Each promotion moves the GP, so after the final promotions the designs it ranks on
+    top need not all have their full batch. Running the finished study again used to
+    promote those too, and the optimum could change from one run of the same command to
+    the next."""
+    from tumblebot.sim.optimize.search import _top_is_promoted
+
+    db = tmp_path / "f.db"
+    cmd = ["optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--recipe", "efficient", "--trials",
+           "30", "--batch", "12", "--seed", "2", "--workers", "2", "--storage", f"sqlite:///{db}", "--study", "f"]
+    tb_ok(*cmd, "--quiet")
+    study = load(db, "f")
+    assert not _top_is_promoted(study, Objective({"nav-flat": 1.0}, 3.0), 3, 3.0)  # what used to be promoted again
+    promoted, spent, best = set(promotions(study)), episode_count(study), best_candidate(study)
+    again = tb_ok(*cmd)
+    assert "(0 episodes this run)" in again.stdout
+    study = load(db, "f")
+    assert set(promotions(study)) == promoted and episode_count(study) == spent and best_candidate(study) == best
+
 
 # ------------------------------------------------------------------ bad input
 @pytest.mark.parametrize(("args", "message"), [
