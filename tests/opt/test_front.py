@@ -260,7 +260,7 @@ def _cliff(rng: np.random.Generator, n: int) -> list[surrogate.Observation]:
         w = surrogate.from_unit(rng.uniform(0.0, 1.0, 4))
         if not surrogate.feasible(w[None, :])[0]:
             continue
-        margin = w[3] - math.hypot(w[1] / 2.0, w[2] / 2.0)
+        margin = w[3] - Design(*w).pivot_radius
         S = (0.9 if margin > 0.015 else 0.2) + rng.normal(0.0, 0.15, 4)
         out.append(surrogate.Observation(len(out), w, S, energy_per_metre(Design(*w))))
     return out
@@ -271,7 +271,7 @@ def test_that_poor_results_beside_other_bodies_cliffs_do_not_write_off_short_leg
     screens of large bodies with legs just past their pivot radius as "short legs are bad",
     for the small body too, whose cliff is far shorter. On the leg margin it is one cliff."""
     small = surrogate.from_unit(np.array([[0.0, 0.0, 0.0, 0.0]]))[0]  # the lightest body
-    r = math.hypot(small[1] / 2.0, small[2] / 2.0)
+    r = Design(*small).pivot_radius
     short = np.array([[*small[:3], r + m] for m in (0.025, 0.03, 0.035)])  # past its cliff
     for seed in range(9, 14):  # on l itself, three of these five studies read about 0.3 there
         model = surrogate.fit(_cliff(np.random.default_rng(seed), 60))

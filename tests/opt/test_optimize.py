@@ -256,7 +256,7 @@ def test_that_a_task_without_a_bundled_policy_is_refused(monkeypatch: pytest.Mon
 def test_that_a_study_made_for_another_objective_is_refused_and_left_untouched(tmp_path: Path) -> None:
     db = tmp_path / "s.db"
     base = ["--storage", f"sqlite:///{db}", "--study", "s", "--trials", "3", "--batch", "240", "--quiet"]
-    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", *base).returncode == 0
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", *base)
     before = load(db, "s")
     snapshot = ([(t.number, t.state, t.params, t.value) for t in before.trials], before.user_attrs)
     for other in (["--tasks", "nav-flat", "--xi", "3"], ["--tasks", "nav-flat=2", "--xi", "inf"],
@@ -269,8 +269,8 @@ def test_that_a_study_made_for_another_objective_is_refused_and_left_untouched(t
 
 def test_that_report_refuses_a_missing_study(tmp_path: Path) -> None:
     db = tmp_path / "r.db"
-    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--batch", "2",
-              "--storage", f"sqlite:///{db}", "--study", "here", "--quiet").returncode == 0
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--batch", "2",
+          "--storage", f"sqlite:///{db}", "--study", "here", "--quiet")
     run = tb("report", "--storage", f"sqlite:///{db}", "--study", "gone", "-o", str(tmp_path / "out"))
     assert run.returncode == 2 and "does not exist" in run.stderr and "here" in run.stderr
 
@@ -486,8 +486,8 @@ def test_that_a_study_made_before_controllers_were_recorded_still_loads_as_polic
     from tumblebot.sim.optimize import load_config
 
     storage = f"sqlite:///{tmp_path / 'old.db'}"
-    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
-              "--study", "old", "--quiet").returncode == 0
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "2", "--storage", storage,
+          "--study", "old", "--quiet")
     study = load(tmp_path / "old.db", "old")
     raw = dict(study.user_attrs["tumblebot"])
     for key in ("controller", "motor_model", "stall_torque", "front"):
@@ -515,8 +515,8 @@ def test_that_optuna_dashboard_opens_a_study_from_the_same_storage_url(tmp_path:
     from optuna_dashboard import wsgi
 
     storage = f"sqlite:///{tmp_path / 'dash.db'}"
-    assert tb("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
-              "--study", "dash", "--quiet").returncode == 0
+    tb_ok("optimize", "--tasks", "nav-flat", "--xi", "inf", "--trials", "3", "--storage", storage,
+          "--study", "dash", "--quiet")
     app = wsgi(storage)
 
     def get(path: str) -> dict:  # type: ignore[type-arg]
@@ -641,7 +641,7 @@ def test_that_a_study_pinned_to_a_policy_file_resumes_and_reports_only_with_that
     assert load(tmp_path / "p.db", "p").user_attrs["tumblebot"]["policies"] == {"nav-flat": sha256_of(old)}
     refused = tb(*base)  # the bundled policy is not the one the study ran with
     assert refused.returncode == 2 and "different objective" in refused.stderr, refused.stderr
-    assert tb(*base, "--trials", "3", "--policy", str(old)).returncode == 0  # a bare FILE: the study's one task
+    tb_ok(*base, "--trials", "3", "--policy", str(old))  # a bare FILE: the study's one task
     report = ["report", "--storage", storage, "--study", "p", "--episodes", "2", "--slice-points", "2", "--quiet"]
     stale = tb(*report, "-o", str(tmp_path / "stale"))
     err = stale.stderr.strip().splitlines()
@@ -650,7 +650,7 @@ def test_that_a_study_pinned_to_a_policy_file_resumes_and_reports_only_with_that
     tb_ok(*report, "-o", str(tmp_path / "pinned"), "--policy", f"nav-flat={old}")
     data = json.loads((tmp_path / "pinned" / "report.json").read_text())
     assert data["policies"] == {"nav-flat": sha256_of(old)}
-    assert tb(*report, "-o", str(tmp_path / "goto"), "--gait", "goto").returncode == 0  # another controller: no pin
+    tb_ok(*report, "-o", str(tmp_path / "goto"), "--gait", "goto")  # another controller: no pin
 
 
 @pytest.mark.parametrize(("argv", "message"), [
