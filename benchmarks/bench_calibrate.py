@@ -22,7 +22,10 @@ and the host, the agent and the calibration are not told it.
    experiment: under the true profile itself its distances differ, p = 0.006 in one
    measured world.) The policy closes the loop and reaches the setpoint under any servo,
    so its final distances say little about the simulator; a scripted run's final distance
-   scales with how far each drive step goes, which the servo sets.
+   scales with how far each drive step goes, which the servo sets. The control: the open-loop
+   replays under the true profile itself, which must not be told apart either. The twin
+   runs in real time, so on a loaded machine its chain's delays grow and its trials drift
+   from any pure replay (run the benchmark on an idle machine).
 3. **Decision** (``--decision-trials N``, ``--decision-seeds K``): ``optimize --physics
    FITTED`` and ``optimize --physics TRUE`` at the same budget with each of K optimiser seeds
    (nav-flat, ξ = 3, the efficient recipe, ``goto`` driving the episodes: the bundled
@@ -140,14 +143,19 @@ def calibrate(folder: Path) -> tuple[dict[str, Any], float]:
     return result, seconds
 
 
-def open_loop(holdout: Path, fitted: PhysicsProfile, gait: str) -> tuple[float, float]:
-    """Open-loop prediction of held-out scripted trials under the fitted profile and ``thesis``."""
+def open_loop(holdout: Path, fitted: PhysicsProfile, truth: PhysicsProfile, gait: str) -> tuple[float, float, float]:
+    """Open-loop prediction of held-out scripted trials under the fitted profile and ``thesis``,
+    and, the control, under the true profile: (p fitted, p thesis, p true). The twin runs in
+    real time, so a loaded machine delays its chain and its trials drift from any pure
+    replay; the control shows whether the instrument is sound in this run."""
     log_med, open_fit, q_fit = replay_prediction(holdout, fitted)
     _, open_thesis, q_thesis = replay_prediction(holdout, THESIS)
+    _, open_true, q_true = replay_prediction(holdout, truth)
     print(f"  held-out {gait} trials, open loop (their commands replayed): distance from start to end, "
           f"logged median {log_med:.3f} m; simulated under the fitted profile {open_fit:.3f} m (p = {q_fit:.3f}), "
-          f"under thesis {open_thesis:.3f} m (p = {q_thesis:.3f})")
-    return q_fit, q_thesis
+          f"under thesis {open_thesis:.3f} m (p = {q_thesis:.3f}); control, under the true profile "
+          f"{open_true:.3f} m (p = {q_true:.3f})")
+    return q_fit, q_thesis, q_true
 
 
 def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0) -> tuple[float, ...]:
@@ -246,9 +254,11 @@ def _tally(row: dict[str, Any], k: int) -> str:
     return f"{(ties if k == 0 else agree)}/{n}".ljust(16)
 
 
-def predict(folder: Path, world: Path, fitted: PhysicsProfile, args: argparse.Namespace, k: int) -> dict[str, float]:
+def predict(folder: Path, world: Path, fitted: PhysicsProfile, truth: PhysicsProfile, args: argparse.Namespace,
+            k: int) -> dict[str, float]:
     """The prediction stage of hidden world ``k``: held-out trials through the twin, closed
-    loop (``p_*``) and open loop (``q_*``), against simulation under the fitted profile and ``thesis``."""
+    loop (``p_*``) and open loop (``q_*``), against simulation under the fitted profile and
+    ``thesis`` (and open loop under the true profile, the control: ``q_true``)."""
     row: dict[str, float] = {}
     if args.holdout > 0:
         twin(folder / "holdout", world, "nav-flat", args.holdout, seed=100 + k)
@@ -261,7 +271,7 @@ def predict(folder: Path, world: Path, fitted: PhysicsProfile, args: argparse.Na
     if args.holdout_open > 0:  # open loop in the twin too, so a replay is the same experiment
         held = folder / f"holdout-{args.holdout_gait}"
         twin(held, world, args.holdout_gait, args.holdout_open, seed=200 + k)
-        row["q_fitted"], row["q_thesis"] = open_loop(held, fitted, args.holdout_gait)
+        row["q_fitted"], row["q_thesis"], row["q_true"] = open_loop(held, fitted, truth, args.holdout_gait)
     return row
 
 
@@ -311,20 +321,20 @@ def main() -> int:
         speed = result["parameters"]["free_speed"]
         speed_ok = speed["identifiable"] and abs(speed["value"] - truth.free_speed) <= 0.1 * truth.free_speed
         row: dict[str, Any] = {"world": hidden["name"], "recovery": bool(ok and speed_ok), "minutes": seconds / 60}
-        row.update(predict(folder, world, fitted, args, k))
+        row.update(predict(folder, world, fitted, truth, args, k))
         if args.decision_trials > 0:
             row["decision"], row["decisions"] = decision(folder, world, args.decision_trials,
                                                          max(1, args.decision_seeds))
         row.update(truth=truth.to_json(), fitted=fitted.to_json(), parameters=result["parameters"])
         rows.append(row)
-    print("\n                                         closed loop          open loop            decision: seeds where")
-    print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis)  fitted ties true   "
-          "true ties true")
+    print(f"\n{'':41s}closed loop          open loop{'':22s}decision: seeds where")
+    print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis) p(true)  "
+          "fitted ties true   true ties true")
     for r in rows:
         nan = float("nan")
         print(f"{r['world']:21s} {'yes' if r['recovery'] else 'NO':8s} {r['minutes']:7.1f}  "
               f"{r.get('p_fitted', nan):9.3f} {r.get('p_thesis', nan):9.3f}  {r.get('q_fitted', nan):9.3f} "
-              f"{r.get('q_thesis', nan):9.3f}  {_tally(r, 0)}  {_tally(r, 2)}")
+              f"{r.get('q_thesis', nan):9.3f} {r.get('q_true', nan):7.3f}  {_tally(r, 0)}  {_tally(r, 2)}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
                                      f"({os.cpu_count()} cores, {platform.processor() or platform.machine()})",
