@@ -296,6 +296,10 @@ def main() -> int:
     print(f"bench_calibrate {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
           f"{platform.processor() or platform.machine()}): {args.trials} identification trials and {args.holdout} "
           "held-out policy trials per hidden world, through the twin")
+    load = os.getloadavg()[0]
+    if load > 0.5 * (os.cpu_count() or 1):
+        print(f"warning: load average {load:.1f} at start; the twin runs in real time, and on a loaded machine "
+              "its chain's delays grow and its trials drift from the world it was given (run on an idle machine)")
     rows = []
     for k, hidden in enumerate(HIDDEN):
         if args.only is not None and k != args.only:
