@@ -53,6 +53,7 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -105,10 +106,12 @@ def prediction(holdout: Path, profile: PhysicsProfile) -> tuple[float, float, fl
     return float(np.median(logged)), float(np.median(simulated)), ad_p(logged, simulated)
 
 
-def replay_prediction(holdout: Path, profile: PhysicsProfile, seeds: int = 8) -> tuple[float, float, float]:
+def replay_prediction(holdout: Path, profiles: Sequence[PhysicsProfile], seeds: int = 8
+                      ) -> tuple[float, list[tuple[float, float]]]:
     """Open loop: each held-out trial's logged commands replayed from its logged start under
-    ``profile`` (``seeds`` times); the distance from start to end of the logged trials against
-    the replays': (logged median, simulated median, p)."""
+    each of ``profiles`` (``seeds`` times); the distance from start to end of the logged trials
+    against the replays': (logged median, [(simulated median, p) per profile]). The trials
+    are read once."""
     from tumblebot.host.calibrate import load_trials
     from tumblebot.sim.calibration import replay
     from tumblebot.sim.world.env import TumblerEnv
@@ -116,15 +119,18 @@ def replay_prediction(holdout: Path, profile: PhysicsProfile, seeds: int = 8) ->
 
     trials = load_trials([holdout])
     logged = np.array([np.hypot(t.track.x[-1] - t.track.x[0], t.track.y[-1] - t.track.y[0]) for t in trials])
-    env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
-                     **profile.env_kwargs())
-    try:
-        simulated = np.array([np.hypot(tk.x[-1] - tk.x[0], tk.y[-1] - tk.y[0])
-                              for j, t in enumerate(trials) for s in range(seeds)
-                              for tk in [replay(env, t.trace, 7_000_000 + 100 * j + s)]])
-    finally:
-        env.close()
-    return float(np.median(logged)), float(np.median(simulated)), ad_p(logged, simulated)
+    out = []
+    for profile in profiles:
+        env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
+                         **profile.env_kwargs())
+        try:
+            simulated = np.array([np.hypot(tk.x[-1] - tk.x[0], tk.y[-1] - tk.y[0])
+                                  for j, t in enumerate(trials) for s in range(seeds)
+                                  for tk in [replay(env, t.trace, 7_000_000 + 100 * j + s)]])
+        finally:
+            env.close()
+        out.append((float(np.median(simulated)), ad_p(logged, simulated)))
+    return float(np.median(logged)), out
 
 
 def calibrate(folder: Path) -> tuple[dict[str, Any], float]:
@@ -148,9 +154,8 @@ def open_loop(holdout: Path, fitted: PhysicsProfile, truth: PhysicsProfile, gait
     and, the control, under the true profile: (p fitted, p thesis, p true). The twin runs in
     real time, so a loaded machine delays its chain and its trials drift from any pure
     replay; the control shows whether the instrument is sound in this run."""
-    log_med, open_fit, q_fit = replay_prediction(holdout, fitted)
-    _, open_thesis, q_thesis = replay_prediction(holdout, THESIS)
-    _, open_true, q_true = replay_prediction(holdout, truth)
+    log_med, [(open_fit, q_fit), (open_thesis, q_thesis), (open_true, q_true)] = \
+        replay_prediction(holdout, (fitted, THESIS, truth))
     print(f"  held-out {gait} trials, open loop (their commands replayed): distance from start to end, "
           f"logged median {log_med:.3f} m; simulated under the fitted profile {open_fit:.3f} m (p = {q_fit:.3f}), "
           f"under thesis {open_thesis:.3f} m (p = {q_thesis:.3f}); control, under the true profile "
