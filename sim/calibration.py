@@ -15,10 +15,11 @@ emulator (a response surface), in two rounds:
 1. Simulate the whole set of traces at points of a scrambled Sobol design over the prior
    box of every fitted parameter (free speed and stall torque on a log scale), one
    independent seed per point; fit each statistic by a quadratic in the parameters
-   (least squares); weigh a dense quasi-random sample of the box by the Gaussian
-   synthetic likelihood of the logged statistics, whose variance is measured from
-   replicate simulations (how much the same trials differ from run to run) plus the
-   emulator's own error.
+   (least squares), and the log of its scatter about that quadratic by an affine function;
+   weigh a dense quasi-random sample of the box by the Gaussian synthetic likelihood of
+   the logged statistics, with the variance emulated at each point (how much the same
+   trials differ from run to run depends on the world: one place's scatter of a drive's
+   mean turn was a quarter of another's, nearby) plus the error of the emulated mean.
 2. Zoom the box to where that posterior lies and do it again there.
 
 The posterior's 5 %, 50 % and 95 % quantiles give each parameter its value and 90 %
@@ -30,11 +31,12 @@ Any other parameter is reported as not identifiable and keeps the prior's value,
 the logs rule that value out (it lies outside the parameter's 90 % posterior interval):
 then the profile takes the posterior's median, so that it reproduces the logged motion,
 and the report says that the value is not a confident one. The kept values are checked
-together too, by replicate simulations: when the profile misfits the logged statistics by
-more than :data:`MAX_MISFIT`, the kept values that show in the logs are searched together
-inside their 90 % intervals (Optuna's TPE, every candidate simulated; the emulator is too
-coarse to rank points that close), and when the best values found lower the misfit by more
-than :data:`MIN_IMPROVEMENT` on fresh replicates, the profile takes them, with the same caveat.
+together too, by 16 replicate simulations of the profile (their scatter is the misfit's
+yardstick): when the profile misfits the logged statistics by more than
+:data:`MAX_MISFIT`, the kept values that show in the logs are searched together inside
+their 90 % intervals (Optuna's TPE, every candidate simulated; the emulator is too coarse
+to rank points that close), and when the best values found lower the misfit by more than
+:data:`MIN_IMPROVEMENT` on fresh replicates, the profile takes them, with the same caveat.
 """
 
 from __future__ import annotations
@@ -404,8 +406,8 @@ class Settings:
         return (self.design_points,) + (later,) * len(ZOOMS)
 
     def simulations(self) -> int:
-        """Simulated trial sets of the rounds and their replicates, the prior's and the fitted profile's."""
-        return self.replicates * (len(self.rounds()) + 1) + sum(self.rounds())
+        """Simulated trial sets of the rounds, the prior's replicates and twice as many of the fitted profile's."""
+        return self.replicates * 3 + sum(self.rounds())
 
     def search_simulations(self) -> int:
         """Simulated trial sets of the kept values' joint check, when it runs."""
@@ -422,13 +424,26 @@ def _quadratic(u: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
+#: E[log χ²₁]: the log of a squared Gaussian residual falls short of the log variance by this, on average
+_LOG_CHI2_1 = -1.2703628454614782
+
+
+def _linear(u: np.ndarray) -> np.ndarray:
+    """The features of an affine function of ``u`` (rows are points in the unit box)."""
+    return np.column_stack([np.ones(len(u)), u - 0.5])
+
+
 @dataclass
 class Emulator:
     """Each statistic as a quadratic in the parameters (on the unit box), fitted by least
-    squares, with its residual variance."""
+    squares, and the log of its variance about that quadratic as an affine function of the
+    parameters: how much a simulated trial set's statistic scatters depends on where it was
+    simulated (more motor noise, more scatter), and a likelihood that took one place's
+    scatter for every place's would weigh some statistics far too much elsewhere."""
 
     coef: np.ndarray  #: (features, statistics)
-    residual_var: np.ndarray  #: per statistic
+    log_var: np.ndarray  #: (affine features, statistics): the log variance about the quadratic
+    residual_var: np.ndarray  #: per statistic, over the whole design
     points: int
 
     @classmethod
@@ -439,10 +454,19 @@ class Emulator:
         coef, _, _, _ = lstsq(x, y)
         resid = y - x @ coef
         dof = max(1, len(u) - x.shape[1])
-        return cls(np.asarray(coef), (resid ** 2).sum(axis=0) / dof, len(u))
+        residual_var = (resid ** 2).sum(axis=0) / dof
+        # a least-squares residual is smaller than the scatter by (dof / points) on average
+        squared = resid ** 2 * (len(u) / dof) + 1e-6 * residual_var + 1e-24
+        log_var, _, _, _ = lstsq(_linear(u), np.log(squared) - _LOG_CHI2_1)
+        return cls(np.asarray(coef), np.asarray(log_var), residual_var, len(u))
 
     def predict(self, u: np.ndarray) -> np.ndarray:
         return np.asarray(_quadratic(u) @ self.coef)
+
+    def variance(self, u: np.ndarray) -> np.ndarray:
+        """Each statistic's variance about the quadratic at ``u``: one set's run-to-run
+        scatter and the quadratic's lack of fit there, together."""
+        return np.asarray(np.exp(_linear(np.atleast_2d(u)) @ self.log_var))
 
 
 def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs: Sequence[float]) -> list[float]:
@@ -489,9 +513,11 @@ class _Fit:
         return profile_at(self.prior, {p.name: float(p.from_unit(np.array(u[j]), box[j]))
                                        for j, p in enumerate(self.params)})
 
-    def replicate(self, profile: PhysicsProfile, base: int) -> tuple[np.ndarray, list[list[np.ndarray]]]:
-        """Statistics of ``replicates`` runs of the whole set under ``profile`` (seeds from ``base``)."""
-        runs = self.simulator.run([(profile, base + r) for r in range(self.settings.replicates)])
+    def replicate(self, profile: PhysicsProfile, base: int, times: int = 1
+                  ) -> tuple[np.ndarray, list[list[np.ndarray]]]:
+        """Statistics of ``times`` × ``replicates`` runs of the whole set under ``profile``
+        (seeds from ``base``)."""
+        runs = self.simulator.run([(profile, base + r) for r in range(times * self.settings.replicates)])
         return np.array([self.stats_of(f) for f in runs]), runs
 
     def design(self, n: int, box: Box, seed: int, base: int) -> tuple[np.ndarray, np.ndarray]:
@@ -504,17 +530,18 @@ class _Fit:
         keep = np.all(np.isfinite(y), axis=1)
         return u[keep], y[keep]
 
-    def posterior(self, emulator: Emulator, noise_var: np.ndarray, box: Box, seed: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
+    def posterior(self, emulator: Emulator, box: Box, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """Quasi-random points of ``box`` (parameter values) and their normalised weights under
-        the synthetic likelihood: run-to-run noise, the emulator's lack of fit beyond that
-        noise, and the error of its estimated mean."""
+        the Gaussian synthetic likelihood, whose variance at each point is the emulator's
+        there (run-to-run scatter and lack of fit, :meth:`Emulator.variance`) plus the error
+        of its estimated mean; the log of that variance enters too, so that a place of large
+        scatter is not favoured for fitting everything loosely."""
         from scipy.stats import qmc
 
         u = qmc.Sobol(len(self.params), scramble=True, seed=seed).random(self.settings.posterior_samples)
-        res = emulator.residual_var
-        var = noise_var + np.maximum(res - noise_var, 0.0) + res * _quadratic(u[:1]).shape[1] / emulator.points
-        loglik = -0.5 * (((self.s_obs - emulator.predict(u)) ** 2) / var).sum(axis=1)
+        scatter = emulator.variance(u)
+        var = scatter * (1.0 + _quadratic(u[:1]).shape[1] / emulator.points)
+        loglik = -0.5 * ((((self.s_obs - emulator.predict(u)) ** 2) / var) + np.log(var)).sum(axis=1)
         w = np.exp(loglik - loglik.max())
         values = self.values(u, box)
         return values, w / w.sum()
@@ -674,34 +701,31 @@ def calibrate(traces: Sequence[Trace], tracks: Sequence[Track], prior: PhysicsPr
     sizes = settings.rounds()
     say(f"round 1 of {len(sizes)}: the prior box, {sizes[0]} simulated trial sets and {settings.replicates} replicates")
     prior_stats, prior_runs = fit.replicate(prior, 10_000_000)
-    noise = noise1 = np.var(prior_stats, axis=0, ddof=1) + 1e-12
+    noise1 = np.var(prior_stats, axis=0, ddof=1) + 1e-12
     u1, y = fit.design(sizes[0], fit.box1, settings.seed, 0)
     points = fit.values(u1, fit.box1)  # every simulated design point so far, as parameter values
     emulator = Emulator.fit(u1, y)
-    values, w = fit.posterior(emulator, noise, fit.box1, settings.seed + 1)
+    values, w = fit.posterior(emulator, fit.box1, settings.seed + 1)
     centre = fit.median(values, w)
     centre_u = fit.units(np.array([[centre[p.name] for p in fit.params]]), fit.box1)[0]
-    effects = fit.effects(emulator, noise, centre_u)
+    effects = fit.effects(emulator, noise1, centre_u)
 
     for r, (size, (tail, pad)) in enumerate(zip(sizes[1:], ZOOMS, strict=False), start=2):
         box = fit.zoom(values, w, tail, pad)
-        say(f"round {r} of {len(sizes)}: the posterior's box, {size} simulated trial sets and "
-            f"{settings.replicates} replicates")
-        # seed bases: every simulation its own seed, and round 2's those of a two-round fit (its cache holds)
-        base = 20_000_000 if r == 2 else 100_000_000 * r
-        centre_stats, _ = fit.replicate(profile_at(prior, fit.median(values, w)), base)
-        noise = np.var(centre_stats, axis=0, ddof=1) + 1e-12
+        say(f"round {r} of {len(sizes)}: the posterior's box, {size} simulated trial sets")
         u_new, y_new = fit.design(size, box, settings.seed + 2 * (r - 1), 30_000_000 * (r - 1))
         mask = fit.inside(points, box)  # earlier rounds' points inside the new box help too
         emulator = Emulator.fit(np.vstack([u_new, fit.units(points[mask], box)]), np.vstack([y_new, y[mask]]))
         points, y = np.vstack([points, fit.values(u_new, box)]), np.vstack([y, y_new])
-        values, w = fit.posterior(emulator, noise, box, settings.seed + 2 * r - 1)
+        values, w = fit.posterior(emulator, box, settings.seed + 2 * r - 1)
 
     parameters = {p.name: _estimate(p, prior, _weighted_quantiles(values[:, j], w, [0.05, 0.5, 0.95]),
                                     effects[p.name], fit.box1[j]) for j, p in enumerate(fit.params)}
     profile = profile_at(prior, {k: v["value"] for k, v in parameters.items() if not v["kept_prior"]}, name)
-    say("checking the fit: replicate simulations under the prior and the fitted profile")
-    fitted_stats, fitted_runs = fit.replicate(profile, 40_000_000)
+    say("checking the fit: replicate simulations under the fitted profile")
+    # twice the replicates: their scatter is the yardstick of every misfit from here on
+    fitted_stats, fitted_runs = fit.replicate(profile, 40_000_000, times=2)
+    noise = np.var(fitted_stats, axis=0, ddof=1) + 1e-12
 
     misfit = fit.misfit
     # Each kept prior value agrees with the logs on its own; together they may not (a

@@ -92,8 +92,8 @@ def test_a_calibration_writes_the_profile_and_its_picture_and_resumes_after_ctrl
     speed = result["parameters"]["free_speed"]
     settings = Settings(design_points=MIN_DESIGN_POINTS)
     searched = settings.search_simulations() if result["fit"]["kept_values_checked"] else 0
-    # the prior, each later round's centre and the fitted profile 8 times each, the rounds' points
-    assert settings.simulations() == (len(settings.rounds()) + 1) * 8 + sum(settings.rounds())
+    # the prior 8 times, the fitted profile 16 times, the rounds' points
+    assert settings.simulations() == 3 * 8 + sum(settings.rounds())
     assert result["fit"]["simulated_sets"] == settings.simulations() + searched - kept  # nothing twice
     written = PhysicsProfile.load(str(out))
     assert written.name == "lab" and written.free_speed == speed["value"]

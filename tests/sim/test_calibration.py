@@ -89,6 +89,23 @@ def test_latency_moves_its_mean_and_keeps_the_spread() -> None:
     assert p.apply(THESIS, 0.005).latency == pytest.approx((0.0, 0.01))
 
 
+def test_the_emulator_learns_where_simulations_scatter_more() -> None:
+    """A statistic whose run-to-run scatter grows tenfold across the box (as a drive's turn
+    scatters more in some worlds than others): the emulated variance follows it within a
+    factor of 2 at both ends, and a statistic of even scatter stays even."""
+    rng = np.random.default_rng(0)
+    u = rng.random((400, 2))
+    sd = 0.01 + 0.09 * u[:, 1]  # scatter grows with the second parameter
+    y = np.column_stack([0.5 + 0.2 * u[:, 0] + sd * rng.standard_normal(400),
+                         0.3 + 0.1 * u[:, 1] + 0.01 * rng.standard_normal(400)])
+    emulator = cal.Emulator.fit(u, y)
+    var = emulator.variance(np.array([[0.5, 0.05], [0.5, 0.95]]))
+    truth = (0.01 + 0.09 * np.array([0.05, 0.95])) ** 2
+    assert np.all(var[:, 0] / truth > 0.5) and np.all(var[:, 0] / truth < 2.0)
+    assert np.all(np.abs(np.log(var[:, 1] / 0.01 ** 2)) < np.log(2.0))
+    assert emulator.predict(np.array([[0.5, 0.5]]))[0] == pytest.approx([0.6, 0.35], abs=0.01)
+
+
 def test_a_prior_value_ruled_out_together_with_the_others_gives_way_to_the_searched_value() -> None:
     kept = {"value": 0.582, "low": 0.19, "high": 1.5, "identifiable": False, "prior": 0.582, "kept_prior": True,
             "posterior": [0.39, 0.47, 0.64], "effect": 40.0, "why": "kept"}
