@@ -106,6 +106,20 @@ def test_the_emulator_learns_where_simulations_scatter_more() -> None:
     assert emulator.predict(np.array([[0.5, 0.5]]))[0] == pytest.approx([0.6, 0.35], abs=0.01)
 
 
+def test_the_likelihood_does_not_favour_where_simulations_scatter_most() -> None:
+    """A logged statistic 0.01 from a mean that no parameter moves, and a parameter that
+    only makes the simulations scatter (0.005 to 0.055): the posterior leans toward a scatter
+    the size of the miss, not toward the noisy end, where any miss would look small."""
+    rng = np.random.default_rng(1)
+    u = rng.random((600, len(cal.PARAMETERS)))
+    y = (0.55 + (0.005 + 0.05 * u[:, 1]) * rng.standard_normal(600))[:, None]
+    fit = cal._Fit({"drive distance": 0.56}, THESIS, None, cal.Settings())  # type: ignore[arg-type]
+    values, w = fit.posterior(cal.Emulator.fit(u, y), fit.box1, seed=2)
+    post = fit.units(values, fit.box1)
+    assert cal._weighted_quantiles(post[:, 1], w, [0.5])[0] < 0.4
+    assert cal._weighted_quantiles(post[:, 0], w, [0.5])[0] == pytest.approx(0.5, abs=0.05)  # it plays no part
+
+
 def test_a_prior_value_ruled_out_together_with_the_others_gives_way_to_the_searched_value() -> None:
     kept = {"value": 0.582, "low": 0.19, "high": 1.5, "identifiable": False, "prior": 0.582, "kept_prior": True,
             "posterior": [0.39, 0.47, 0.64], "effect": 40.0, "why": "kept"}
