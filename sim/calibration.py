@@ -414,23 +414,20 @@ class Settings:
         return self.search_trials * self.search_replicates + self.replicates
 
 
+def _linear(u: np.ndarray) -> np.ndarray:
+    """The features of an affine function of ``u`` (rows are points in the unit box)."""
+    return np.column_stack([np.ones(len(u)), u - 0.5])
+
+
 def _quadratic(u: np.ndarray) -> np.ndarray:
-    """The features of a full quadratic in ``u`` (rows are points in the unit box)."""
+    """The features of a full quadratic in ``u``: the affine ones, then every product."""
     z = u - 0.5
-    cols = [np.ones(len(z))]
     k = z.shape[1]
-    cols += [z[:, j] for j in range(k)]
-    cols += [z[:, i] * z[:, j] for i in range(k) for j in range(i, k)]
-    return np.column_stack(cols)
+    return np.column_stack([_linear(u)] + [z[:, i] * z[:, j] for i in range(k) for j in range(i, k)])
 
 
 #: E[log χ²₁]: the log of a squared Gaussian residual falls short of the log variance by this, on average
 _LOG_CHI2_1 = -1.2703628454614782
-
-
-def _linear(u: np.ndarray) -> np.ndarray:
-    """The features of an affine function of ``u`` (rows are points in the unit box)."""
-    return np.column_stack([np.ones(len(u)), u - 0.5])
 
 
 @dataclass
@@ -444,7 +441,6 @@ class Emulator:
 
     coef: np.ndarray  #: (features, statistics)
     log_var: np.ndarray  #: (affine features, statistics): the log variance about the quadratic
-    residual_var: np.ndarray  #: per statistic, over the whole design
     points: int
 
     @classmethod
@@ -459,7 +455,7 @@ class Emulator:
         # a least-squares residual is smaller than the scatter by (dof / points) on average
         squared = resid ** 2 * (len(u) / dof) + 1e-6 * residual_var + 1e-24
         log_var, _, _, _ = lstsq(_linear(u), np.log(squared) - _LOG_CHI2_1)
-        return cls(np.asarray(coef), np.asarray(log_var), residual_var, len(u))
+        return cls(np.asarray(coef), np.asarray(log_var), len(u))
 
     def predict(self, u: np.ndarray) -> np.ndarray:
         return np.asarray(_quadratic(u) @ self.coef)
