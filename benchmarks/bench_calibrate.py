@@ -33,7 +33,11 @@ and the host, the agent and the calibration are not told it.
    profile on the same 480 episodes; with each seed the fitted profile's optimum must tie the
    true one's (paired t-test on the per-episode objective, p > 0.05) or beat it. The
    yardstick beside it: how often two studies under the true profile itself (neighbouring
-   seeds) tie each other, which is as often as any profile can be expected to.
+   seeds) tie each other, which is as often as any profile can be expected to. Where the
+   fitted profile's optimum is worse, both optima are scored under the fitted profile as
+   well, on the same episodes: if it ranks them as the truth does, its study missed a
+   design it would have rated higher (the search's miss); if it ties them or ranks them the
+   other way, the fit misled it.
 4. **Cost**: the calibration's wall time on this machine.
 
 Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
@@ -175,16 +179,16 @@ def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0)
     return tuple(float(best["design"][k]) for k in ("x", "y", "z", "l"))
 
 
-def objectives(design: tuple[float, ...], truth: Path, folder: Path, episodes: int) -> np.ndarray:
-    """Per-episode objective R/(e+1)^3 of ``design`` under the true profile (seed 7, the same
-    episodes for every design)."""
+def objectives(design: tuple[float, ...], profile: Path, folder: Path, episodes: int, tag: str = "") -> np.ndarray:
+    """Per-episode objective R/(e+1)^3 of ``design`` under ``profile`` (the true one unless
+    ``tag`` names another; seed 7, the same episodes for every design)."""
     from tumblebot.sim.world.design import Design
     from tumblebot.sim.world.power import energy_per_metre
 
-    csv = folder / f"decision-{'-'.join(f'{v:.5f}' for v in design)}.csv"
+    csv = folder / f"decision-{tag + '-' if tag else ''}{'-'.join(f'{v:.5f}' for v in design)}.csv"
     if not csv.is_file():
         run = tb("evaluate", "--task", "nav-flat", "--design", ",".join(f"{v:.8g}" for v in design), "--gait", "goto",
-                 "--physics", str(truth), "--episodes", str(episodes), "--seed", "7", "--workers", "2",
+                 "--physics", str(profile), "--episodes", str(episodes), "--seed", "7", "--workers", "2",
                  "--csv", str(csv))
         if run.returncode != 0:
             raise SystemExit(f"evaluate failed:\n{run.stderr[-3000:]}")
@@ -228,6 +232,19 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
               f"optimum under the fitted profile {tuple(round(v, 3) for v in fitted_w[s])} objective "
               f"{f_fit[s].mean():.5f}; under the true profile {tuple(round(v, 3) for v in true_w[s])} "
               f"{f_true[s].mean():.5f}; paired p = {p:.3g} ({verdict})")
+        if verdict == "FITTED WORSE":  # the fit's miss, or the search's? Ask the fitted profile itself
+            g_fit, g_true = (objectives(w, folder / "fitted.json", folder, episodes, tag="fitted")
+                             for w in (fitted_w[s], true_w[s]))
+            q = paired(g_fit, g_true)
+            order = "tie" if q > 0.05 else ("same" if g_true.mean() > g_fit.mean() else "reversed")
+            detail[-1]["under_fitted"] = {"fitted_objective": float(g_fit.mean()),
+                                          "true_objective": float(g_true.mean()), "p": q, "order": order}
+            print(f"    both scored under the fitted profile: {g_fit.mean():.5f} against {g_true.mean():.5f}, "
+                  f"paired p = {q:.3g}: " + {
+                      "same": "it ranks them as the truth does, so its study missed a design it rates higher "
+                              "(the search's miss)",
+                      "tie": "it cannot tell them apart (the fit blurs a difference the truth makes)",
+                      "reversed": "it ranks its own optimum higher (the fit's miss)"}[order])
     agree = 0
     for s in range(yardstick_pairs(seeds)):
         t = (s + 1) % seeds
