@@ -49,6 +49,7 @@ DEADBAND_US = 10.0  #: continuous-rotation servos do not move within a few µs o
 #: Physical servo mounting: the right servo turns its leg forward for longer pulses; the
 #: left one is mounted mirrored.
 MOUNTING = {"right": +1.0, "left": -1.0}
+SERVO_FRAME_S = 0.020  #: the firmware's servo frame: both pins' new widths start in the same frame
 LATE_SUBSTEPS = 10  #: 42 ms at 240 Hz: the most the world may fall behind before a substep counts as late
 
 
@@ -125,6 +126,11 @@ class _World:
         #: (substep, command) not yet in force: a hidden world's command latency
         self.pending: list[tuple[int, tuple[float, float]]] = []
         self.latency_rng = np.random.default_rng(0x7A1E)
+        #: (substep, delay) of the last latency draw: the firmware's two pins may change in
+        #: different reads of one servo frame, and they carry one command, which the radio
+        #: delays as a whole (as a replay does): changes within a frame share the draw
+        self.burst: tuple[int, int] | None = None
+        self.frame_substeps = max(1, round(SERVO_FRAME_S / self.dt))
         self.publish = {"on": True}  #: mocap on/off: the twin can simulate a tracking dropout
         # seq never goes back, across restarts of the world too (a signed stream requires it):
         # milliseconds since the epoch at start, then one per frame (at most 1000 frames a second)
@@ -144,6 +150,7 @@ class _World:
             self.placed, self.wall0, self.substeps, self.sim_time = True, time.monotonic(), 0, 0.0
             self.command = self.pulses = (0.0, 0.0)
             self.pending.clear()
+            self.burst = None
             print(f"placed: {data.decode(errors='replace')}", file=sys.stderr, flush=True)
         quit_now = bool(reply.pop("quit", False))
         ctl.sendto(json.dumps(reply).encode(), source)
@@ -177,8 +184,10 @@ class _World:
         command = self.hardware.commands(self.uno.widths())
         if command != self.pulses:  # a hidden world's latency delays it (none by default)
             self.pulses = command
-            lo, hi = self.env.randomization.latency
-            self.pending.append((self.substeps + round(self.latency_rng.uniform(lo, hi) / self.dt), command))
+            if self.burst is None or self.substeps - self.burst[0] > self.frame_substeps:
+                lo, hi = self.env.randomization.latency
+                self.burst = (self.substeps, round(self.latency_rng.uniform(lo, hi) / self.dt))
+            self.pending.append((self.substeps + self.burst[1], command))
         behind = due - self.substeps
         self.late += max(0, min(behind, 24) - LATE_SUBSTEPS)
         for _ in range(min(behind, 24)):
