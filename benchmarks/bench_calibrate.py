@@ -22,8 +22,8 @@ and the host, the agent and the calibration are not told it.
    experiment: under the true profile itself its distances differ, p = 0.006 in one
    measured world.) The policy closes the loop and reaches the setpoint under any servo,
    so its final distances say little about the simulator; a scripted run's final distance
-   scales with how far each drive step goes, which the servo sets. The control: the open-loop
-   replays under the true profile itself, which must not be told apart either. The twin
+   scales with how far each drive step goes, which the servo sets. The control, in both: the
+   simulation under the true profile itself, which must not be told apart either. The twin
    runs in real time, so on a loaded machine its chain's delays grow and its trials drift
    from any pure replay (run the benchmark on an idle machine).
 3. **Decision** (``--decision-trials N``, ``--decision-seeds K``): ``optimize --physics
@@ -215,7 +215,11 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
     neighbouring seeds that tie each other), the last the yardstick, how often the
     optimiser agrees with itself at this budget when it is told the truth; and each seed's
     optima, their objectives under the truth and the paired p."""
-    fitted_w = [optimum(folder, folder / "fitted.json", f"fitted-s{s}", trials, s) for s in range(seeds)]
+    fitted = folder / "fitted.json"
+    # the fitted profile's hash names its studies and scores, so that a calibration made
+    # again into the same --out (a changed profile) never resumes or reuses the old ones
+    tag = f"fitted-{PhysicsProfile.load(str(fitted)).digest()[:8]}"
+    fitted_w = [optimum(folder, fitted, f"{tag}-s{s}", trials, s) for s in range(seeds)]
     true_w = [optimum(folder, world, f"true-s{s}", trials, s) for s in range(seeds)]
     f_fit = [objectives(w, world, folder, episodes) for w in fitted_w]
     f_true = [objectives(w, world, folder, episodes) for w in true_w]
@@ -233,7 +237,7 @@ def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int =
               f"{f_fit[s].mean():.5f}; under the true profile {tuple(round(v, 3) for v in true_w[s])} "
               f"{f_true[s].mean():.5f}; paired p = {p:.3g} ({verdict})")
         if verdict == "FITTED WORSE":  # the fit's miss, or the search's? Ask the fitted profile itself
-            g_fit, g_true = (objectives(w, folder / "fitted.json", folder, episodes, tag="fitted")
+            g_fit, g_true = (objectives(w, fitted, folder, episodes, tag=tag)
                              for w in (fitted_w[s], true_w[s]))
             q = paired(g_fit, g_true)
             order = "tie" if q > 0.05 else ("same" if g_true.mean() > g_fit.mean() else "reversed")
@@ -280,16 +284,20 @@ def predict(folder: Path, world: Path, fitted: PhysicsProfile, truth: PhysicsPro
             k: int) -> dict[str, float]:
     """The prediction stage of hidden world ``k``: held-out trials through the twin, closed
     loop (``p_*``) and open loop (``q_*``), against simulation under the fitted profile and
-    ``thesis`` (and open loop under the true profile, the control: ``q_true``)."""
+    ``thesis``, and under the true profile, the control (``p_true``, ``q_true``): where the
+    truth's own simulation is told apart from the twin's trials, the twin's chain (its
+    real-time delays) has moved them, and that run says little about the fit."""
     row: dict[str, float] = {}
     if args.holdout > 0:
         twin(folder / "holdout", world, "nav-flat", args.holdout, seed=100 + k)
         log_med, med_fit, p_fit = prediction(folder / "holdout", fitted)
         _, med_thesis, p_thesis = prediction(folder / "holdout", THESIS)
+        _, med_true, p_true = prediction(folder / "holdout", truth)
         print(f"  held-out, closed loop (the policy from the same starts): final distance to the setpoint, logged "
               f"median {log_med:.3f} m; simulated under the fitted profile {med_fit:.3f} m (p = "
-              f"{p_fit:.3f}), under thesis {med_thesis:.3f} m (p = {p_thesis:.3f})")
-        row.update(p_fitted=p_fit, p_thesis=p_thesis)
+              f"{p_fit:.3f}), under thesis {med_thesis:.3f} m (p = {p_thesis:.3f}); control, under the true "
+              f"profile {med_true:.3f} m (p = {p_true:.3f})")
+        row.update(p_fitted=p_fit, p_thesis=p_thesis, p_true=p_true)
     if args.holdout_open > 0:  # open loop in the twin too, so a replay is the same experiment
         held = folder / f"holdout-{args.holdout_gait}"
         twin(held, world, args.holdout_gait, args.holdout_open, seed=200 + k)
@@ -353,13 +361,14 @@ def main() -> int:
                                                          max(1, args.decision_seeds))
         row.update(truth=truth.to_json(), fitted=fitted.to_json(), parameters=result["parameters"])
         rows.append(row)
-    print(f"\n{'':41s}closed loop          open loop{'':22s}decision: seeds where")
-    print("world                 recovery  minutes  p(fitted) p(thesis)  p(fitted) p(thesis) p(true)  "
+    print(f"\n{'':41s}closed loop{'':20s}open loop{'':22s}decision: seeds where")
+    print("world                 recovery  minutes  p(fitted) p(thesis) p(true)  p(fitted) p(thesis) p(true)  "
           "fitted ties true   true ties true")
     for r in rows:
         nan = float("nan")
         print(f"{r['world']:21s} {'yes' if r['recovery'] else 'NO':8s} {r['minutes']:7.1f}  "
-              f"{r.get('p_fitted', nan):9.3f} {r.get('p_thesis', nan):9.3f}  {r.get('q_fitted', nan):9.3f} "
+              f"{r.get('p_fitted', nan):9.3f} {r.get('p_thesis', nan):9.3f} {r.get('p_true', nan):7.3f}  "
+              f"{r.get('q_fitted', nan):9.3f} "
               f"{r.get('q_thesis', nan):9.3f} {r.get('q_true', nan):7.3f}  {_tally(r, 0)}  {_tally(r, 2)}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
