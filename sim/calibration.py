@@ -38,8 +38,9 @@ logged statistics by more than :data:`MIN_IMPROVEMENT` on 8 fresh replicates (th
 misfit's yardstick is the scatter of 16 replicate simulations of the profile), the profile
 takes them. The posterior's medians, one parameter at a time, need not lie where the parameters
 fit the logs together (in one measured world the medians' drives went 5.6 noise SDs too
-far, and the truth's 1.3; in another the medians misfit the logs by 4.2 noise SDs² on
-average and the truth by 1.4), so an identified value moves too, inside its interval
+far, and the truth's 1.3; in another the medians misfit the logs by 2.8 noise SDs² on
+average and the values searched together by 1.8, with the free speed at 4.48 rad/s in place
+of 4.23 for a true 4.5), so an identified value moves too, inside its interval
 (which the search leaves as it was); it stays identified if that interval lies within ±25 %
 of where it moved, and any other value found carries the same caveat as before.
 """
@@ -387,7 +388,7 @@ class Simulator:
 # ----------------------------------------------------------------------------- the fit
 @dataclass(frozen=True)
 class Settings:
-    """How much simulation a calibration spends (the defaults: about 4 minutes for 15
+    """How much simulation a calibration spends (the defaults: about 5 minutes for 15
     trials on two cores)."""
 
     design_points: int = 128  #: Sobol points of round 1 (round 2 has half as many)
