@@ -592,14 +592,18 @@ class _Fit:
         return {p.name: _weighted_quantiles(values[:, j], w, [0.5])[0] for j, p in enumerate(self.params)}
 
 
+def _narrow(low: float, high: float, value: float) -> bool:
+    """Whether the interval ``low``..``high`` lies within ±:data:`MAX_REL_HALF_WIDTH` of ``value``."""
+    return value > 0 and low >= (1 - MAX_REL_HALF_WIDTH) * value and high <= (1 + MAX_REL_HALF_WIDTH) * value
+
+
 def _estimate(p: Parameter, prior: PhysicsProfile, quantiles: list[float], effect: tuple[float, str],
               box: tuple[float, float]) -> dict[str, Any]:
     """One parameter's verdict: identified (value and 90 % interval), or why not, and then
     what the profile takes (the prior's value, unless the logs rule it out)."""
     q05, q50, q95 = quantiles
     size, where = effect
-    narrow = q50 > 0 and q05 >= (1 - MAX_REL_HALF_WIDTH) * q50 and q95 <= (1 + MAX_REL_HALF_WIDTH) * q50
-    identifiable = size >= MIN_EFFECT and narrow
+    identifiable = size >= MIN_EFFECT and _narrow(q05, q95, q50)
     kept = p.value(prior)
     value, lo, hi, keep = kept, box[0], box[1], True
     if identifiable:
@@ -631,8 +635,7 @@ def _ruled_out_jointly(estimate: dict[str, Any], joint: float, improved: float, 
     q05, q50, q95 = estimate["posterior"]
     together = (f"{joint:.1f} noise SDs² against {improved:.1f} with the values searched together in their "
                 f"intervals")
-    narrow = q05 >= (1 - MAX_REL_HALF_WIDTH) * value and q95 <= (1 + MAX_REL_HALF_WIDTH) * value
-    if estimate["identifiable"] and narrow:
+    if estimate["identifiable"] and _narrow(q05, q95, value):
         why = (f"{estimate['why']}; the profile takes {value:.3g} from its interval, where it fits the logs "
                f"together with the other values (the posterior's median {q50:.3g} with them: {together})")
         return {**estimate, "value": value, "why": why}

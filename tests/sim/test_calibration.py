@@ -194,7 +194,7 @@ def test_a_fit_finds_a_hidden_free_speed_and_keeps_what_it_cannot_see(tmp_path: 
         assert speed["low"] <= 4.6 <= speed["high"] and abs(speed["value"] - 4.6) < 0.1 * 4.6
         assert speed["high"] <= 1.25 * speed["value"] and speed["low"] >= 0.75 * speed["value"]
     else:  # the thesis's 3.67 rad/s is ruled out: the profile moves to the posterior's median,
-        # or, when the values together misfit the logs, to where they fit, inside the interval
+        # or, when the values searched together fit the logs better, to where they do, inside the interval
         searched = (result.fit["kept_values_checked"] or {}).get("adopted", False)
         assert not speed["kept_prior"] and speed["why"], speed
         assert speed["value"] == mid or (searched and lo <= speed["value"] <= hi), speed
