@@ -42,10 +42,12 @@ and the host, the agent and the calibration are not told it.
 
 Without the decision stage it takes about 20 minutes per profile on 2 cores (the twin
 runs its 40 trials in real time; the calibration about 5 minutes); the decision stage
-about 4 minutes per 100 trials and seed (its two studies). Every stage keeps its results
-in ``--out`` and a second run reuses them; the summary, with each world's fitted profile and
-every decision's optima, goes to ``--json`` (``benchmarks/results/calibrate.json``). The
-figures, with date and machine, go into ``docs/physics.md``.
+about 4 minutes per 100 trials and seed (its two studies), so about 12 more per profile
+with the defaults (100 trials, 3 seeds, the budget of the committed results). Every stage
+keeps its results in ``--out`` and a second run reuses them; the summary, with each world's
+fitted profile and every decision's optima, goes to ``--json``
+(``benchmarks/results/calibrate.json``). The figures, with date and machine, go into
+``docs/physics.md`` (the latest run) and ``docs/research/calibration-runs.md`` (every run).
 """
 
 from __future__ import annotations
@@ -207,18 +209,19 @@ def paired(a: np.ndarray, b: np.ndarray) -> float:
     return p
 
 
-def decision(folder: Path, world: Path, trials: int, seeds: int, episodes: int = 480
-             ) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
+def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: int, seeds: int,
+             episodes: int = 480) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
     """Optimise under the fitted and under the true profile with each optimiser seed; each
     pair of optima on the same episodes under the truth. Returns (seeds where the fitted
     optimum ties or beats the true one, seeds, pairs of true-profile studies of
     neighbouring seeds that tie each other), the last the yardstick, how often the
     optimiser agrees with itself at this budget when it is told the truth; and each seed's
-    optima, their objectives under the truth and the paired p."""
+    optima, their objectives under the truth and the paired p. ``fitted_profile`` is the
+    profile in ``folder/fitted.json``, already loaded."""
     fitted = folder / "fitted.json"
     # the fitted profile's hash names its studies and scores, so that a calibration made
     # again into the same --out (a changed profile) never resumes or reuses the old ones
-    tag = f"fitted-{PhysicsProfile.load(str(fitted)).digest()[:8]}"
+    tag = f"fitted-{fitted_profile.digest()[:8]}"
     fitted_w = [optimum(folder, fitted, f"{tag}-s{s}", trials, s) for s in range(seeds)]
     true_w = [optimum(folder, world, f"true-s{s}", trials, s) for s in range(seeds)]
     f_fit = [objectives(w, world, folder, episodes) for w in fitted_w]
@@ -315,8 +318,8 @@ def main() -> int:
                     help="the scripted gait of those trials (pulse: a drive step, then a stopped one)")
     ap.add_argument("--out", type=Path, default=Path("runs/bench-calibrate"), help="where the trial sets go")
     ap.add_argument("--only", type=int, help="run only this hidden world (0, 1, 2)")
-    ap.add_argument("--decision-trials", type=int, default=40,
-                    help="trials of each optimisation in the decision stage (40; 0 skips it)")
+    ap.add_argument("--decision-trials", type=int, default=100,
+                    help="trials of each optimisation in the decision stage (100; 0 skips it)")
     ap.add_argument("--decision-seeds", type=int, default=3,
                     help="optimiser seeds of the decision stage, each optimising under both profiles (3)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/calibrate.json"),
@@ -357,7 +360,7 @@ def main() -> int:
         row: dict[str, Any] = {"world": hidden["name"], "recovery": bool(ok and speed_ok), "minutes": seconds / 60}
         row.update(predict(folder, world, fitted, truth, args, k))
         if args.decision_trials > 0:
-            row["decision"], row["decisions"] = decision(folder, world, args.decision_trials,
+            row["decision"], row["decisions"] = decision(folder, world, fitted, args.decision_trials,
                                                          max(1, args.decision_seeds))
         row.update(truth=truth.to_json(), fitted=fitted.to_json(), parameters=result["parameters"])
         rows.append(row)

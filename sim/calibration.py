@@ -82,7 +82,8 @@ FEATURES_VERSION = 2  #: bumped when step features change: a cache of older ones
 MIN_DESIGN_POINTS = 64
 #: the rounds after the first: each zooms to the previous posterior's (tail, 1 - tail)
 #: quantiles, padded by that share of their width. One such round: a third, tighter one
-#: ((0.01, 0.1)) fits the logged statistics better and the truth worse (docs/physics.md)
+#: ((0.01, 0.1)) fits the logged statistics better and the truth worse (measured with the
+#: first likelihood: docs/research/calibration-runs.md, the first run)
 ZOOMS: tuple[tuple[float, float], ...] = ((0.0005, 0.25),)
 
 
