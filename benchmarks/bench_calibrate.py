@@ -169,12 +169,14 @@ def open_loop(holdout: Path, fitted: PhysicsProfile, truth: PhysicsProfile, gait
     return q_fit, q_thesis, q_true
 
 
-def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0) -> tuple[float, ...]:
+def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0, batch: int = 48
+            ) -> tuple[float, ...]:
     """The design ``optimize --physics PROFILE --seed SEED`` finds (resumed if the study exists)."""
     summary = folder / f"optimum-{study}.json"  # not the profile files beside it
     run = tb("optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--recipe", "efficient",
-             "--trials", str(trials), "--batch", "48", "--physics", str(profile), "--seed", str(seed), "--workers", "2",
-             "--storage", f"sqlite:///{folder / 'decision.db'}", "--study", study, "--quiet", "--json", str(summary))
+             "--trials", str(trials), "--batch", str(batch), "--physics", str(profile), "--seed", str(seed),
+             "--workers", "2", "--storage", f"sqlite:///{folder / 'decision.db'}", "--study", study, "--quiet",
+             "--json", str(summary))
     if run.returncode != 0:
         raise SystemExit(f"optimize failed:\n{run.stderr[-3000:]}")
     best = json.loads(summary.read_text())["best"]
@@ -210,20 +212,21 @@ def paired(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: int, seeds: int,
-             episodes: int = 480) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
+             batch: int = 48, episodes: int = 480) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
     """Optimise under the fitted and under the true profile with each optimiser seed; each
     pair of optima on the same episodes under the truth. Returns (seeds where the fitted
     optimum ties or beats the true one, seeds, pairs of true-profile studies of
     neighbouring seeds that tie each other), the last the yardstick, how often the
     optimiser agrees with itself at this budget when it is told the truth; and each seed's
     optima, their objectives under the truth and the paired p. ``fitted_profile`` is the
-    profile in ``folder/fitted.json``, already loaded."""
+    profile in ``folder/fitted.json``, already loaded; ``batch`` the studies' full batch."""
     fitted = folder / "fitted.json"
     # the fitted profile's hash names its studies and scores, so that a calibration made
     # again into the same --out (a changed profile) never resumes or reuses the old ones
     tag = f"fitted-{fitted_profile.digest()[:8]}"
-    fitted_w = [optimum(folder, fitted, f"{tag}-s{s}", trials, s) for s in range(seeds)]
-    true_w = [optimum(folder, world, f"true-s{s}", trials, s) for s in range(seeds)]
+    b = "" if batch == 48 else f"-b{batch}"  # a study keeps its batch: another batch, other studies
+    fitted_w = [optimum(folder, fitted, f"{tag}{b}-s{s}", trials, s, batch) for s in range(seeds)]
+    true_w = [optimum(folder, world, f"true{b}-s{s}", trials, s, batch) for s in range(seeds)]
     f_fit = [objectives(w, world, folder, episodes) for w in fitted_w]
     f_true = [objectives(w, world, folder, episodes) for w in true_w]
     ties = 0
@@ -235,7 +238,8 @@ def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: 
         better = f_fit[s].mean() > f_true[s].mean()
         ties += int(p > 0.05 or bool(better))
         verdict = "tie" if p > 0.05 else ("fitted better" if better else "FITTED WORSE")
-        print(f"  decision, seed {s} ({trials} trials each, {episodes} paired episodes under the true profile): "
+        print(f"  decision, seed {s} ({trials} trials each, batch {batch}, {episodes} paired episodes under the true "
+              "profile): "
               f"optimum under the fitted profile {tuple(round(v, 3) for v in fitted_w[s])} objective "
               f"{f_fit[s].mean():.5f}; under the true profile {tuple(round(v, 3) for v in true_w[s])} "
               f"{f_true[s].mean():.5f}; paired p = {p:.3g} ({verdict})")
@@ -308,6 +312,44 @@ def predict(folder: Path, world: Path, fitted: PhysicsProfile, truth: PhysicsPro
     return row
 
 
+def calibrated(folder: Path, world: Path, truth: PhysicsProfile, args: argparse.Namespace, k: int
+               ) -> tuple[dict[str, Any], PhysicsProfile]:
+    """The twin and calibration stages of hidden world ``k`` (recovery, cost, prediction):
+    the summary's row so far, and the fitted profile."""
+    twin(folder / "excite", world, "excite", args.trials, seed=10 + k)
+    result, seconds = calibrate(folder)
+    fitted = PhysicsProfile.load(str(folder / "fitted.json"))
+    print(f"\n{truth.describe()}\n  calibrated from {args.trials} twin trials in {seconds / 60:.1f} min")
+    ok = True
+    for name, p in result["parameters"].items():
+        true = getattr(truth, name) if name != "latency" else 0.5 * sum(truth.latency)
+        inside = p["low"] <= true <= p["high"]
+        verdict = ("identified, truth inside" if inside else "identified, TRUTH OUTSIDE") if p["identifiable"] \
+            else ("not identifiable (prior kept)" if p["kept_prior"] else "not identifiable (uncertain)")
+        ok &= inside or not p["identifiable"]
+        print(f"  {name:18s} true {true:7.3g}  fitted {p['value']:7.3g}  90 % {p['low']:7.3g}..{p['high']:<7.3g} "
+              f" {verdict}")
+    speed = result["parameters"]["free_speed"]
+    speed_ok = speed["identifiable"] and abs(speed["value"] - truth.free_speed) <= 0.1 * truth.free_speed
+    row: dict[str, Any] = {"world": truth.name, "recovery": bool(ok and speed_ok), "minutes": seconds / 60,
+                           "parameters": result["parameters"]}
+    row.update(predict(folder, world, fitted, truth, args, k))
+    return row, fitted
+
+
+def carried_over(earlier: dict[str, Any], truth: PhysicsProfile, folder: Path, source: Path
+                 ) -> tuple[dict[str, Any], PhysicsProfile]:
+    """The row of ``truth``'s world in an earlier run's summary, and its fitted profile
+    (written to ``folder/fitted.json``, where the decision stage reads it)."""
+    found = [dict(r) for r in earlier["worlds"] if r["world"] == truth.name]
+    if not found:
+        raise SystemExit(f"{source} has no world {truth.name!r}")
+    fitted = PhysicsProfile.from_json(found[0]["fitted"])
+    fitted.write(folder / "fitted.json")
+    print(f"\n{truth.describe()}\n  the fitted profile of {source} ({earlier['date']})")
+    return found[0], fitted
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=15, help="identification trials per hidden world (15)")
@@ -320,17 +362,29 @@ def main() -> int:
     ap.add_argument("--only", type=int, help="run only this hidden world (0, 1, 2)")
     ap.add_argument("--decision-trials", type=int, default=100,
                     help="trials of each optimisation in the decision stage (100; 0 skips it)")
+    ap.add_argument("--decision-batch", type=int, default=48,
+                    help="full batch of each optimisation in the decision stage (48; screening batch 4 "
+                         "up to 60, then a fifteenth of it)")
+    ap.add_argument("--decision-from", type=Path, metavar="SUMMARY",
+                    help="run the decision stage alone on the fitted profiles of an earlier run's summary "
+                         "(e.g. benchmarks/results/calibrate.json), its other stages' results carried over; "
+                         "no twin, no calibration")
     ap.add_argument("--decision-seeds", type=int, default=3,
                     help="optimiser seeds of the decision stage, each optimising under both profiles (3)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/calibrate.json"),
                     help="where the results go, the fitted profiles included (benchmarks/results/calibrate.json)")
     args = ap.parse_args()
+    earlier = json.loads(args.decision_from.read_text()) if args.decision_from is not None else None
+    if earlier is not None and args.decision_trials <= 0:
+        raise SystemExit("--decision-from runs the decision stage alone: --decision-trials must be above 0")
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"bench_calibrate {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
-          f"{platform.processor() or platform.machine()}): {args.trials} identification trials and {args.holdout} "
-          "held-out policy trials per hidden world, through the twin")
+          f"{platform.processor() or platform.machine()}): " + (
+              f"{args.trials} identification trials and {args.holdout} held-out policy trials per hidden world, "
+              "through the twin" if earlier is None else
+              f"the decision stage alone, on the fitted profiles of {args.decision_from}"))
     load = os.getloadavg()[0]
-    if load > 0.5 * (os.cpu_count() or 1):
+    if earlier is None and load > 0.5 * (os.cpu_count() or 1):
         print(f"warning: load average {load:.1f} at start; the twin runs in real time, and on a loaded machine "
               "its chain's delays grow and its trials drift from the world it was given (run on an idle machine)")
     rows = []
@@ -342,27 +396,15 @@ def main() -> int:
         folder.mkdir(exist_ok=True)
         world = folder / "world.json"
         truth.write(world)
-        twin(folder / "excite", world, "excite", args.trials, seed=10 + k)
-        result, seconds = calibrate(folder)
-        fitted = PhysicsProfile.load(str(folder / "fitted.json"))
-        print(f"\n{truth.describe()}\n  calibrated from {args.trials} twin trials in {seconds / 60:.1f} min")
-        ok = True
-        for name, p in result["parameters"].items():
-            true = getattr(truth, name) if name != "latency" else 0.5 * sum(truth.latency)
-            inside = p["low"] <= true <= p["high"]
-            verdict = ("identified, truth inside" if inside else "identified, TRUTH OUTSIDE") if p["identifiable"] \
-                else ("not identifiable (prior kept)" if p["kept_prior"] else "not identifiable (uncertain)")
-            ok &= inside or not p["identifiable"]
-            print(f"  {name:18s} true {true:7.3g}  fitted {p['value']:7.3g}  90 % {p['low']:7.3g}..{p['high']:<7.3g} "
-                  f" {verdict}")
-        speed = result["parameters"]["free_speed"]
-        speed_ok = speed["identifiable"] and abs(speed["value"] - truth.free_speed) <= 0.1 * truth.free_speed
-        row: dict[str, Any] = {"world": hidden["name"], "recovery": bool(ok and speed_ok), "minutes": seconds / 60}
-        row.update(predict(folder, world, fitted, truth, args, k))
+        if earlier is None:
+            row, fitted = calibrated(folder, world, truth, args, k)
+        else:  # the decision alone, on the fitted profile of an earlier run
+            row, fitted = carried_over(earlier, truth, folder, args.decision_from)
         if args.decision_trials > 0:
             row["decision"], row["decisions"] = decision(folder, world, fitted, args.decision_trials,
-                                                         max(1, args.decision_seeds))
-        row.update(truth=truth.to_json(), fitted=fitted.to_json(), parameters=result["parameters"])
+                                                         max(1, args.decision_seeds), args.decision_batch)
+            row["decision_budget"] = {"trials": args.decision_trials, "batch": args.decision_batch}
+        row.update(truth=truth.to_json(), fitted=fitted.to_json())
         rows.append(row)
     print(f"\n{'':41s}closed loop{'':20s}open loop{'':22s}decision: seeds where")
     print("world                 recovery  minutes  p(fitted) p(thesis) p(true)  p(fitted) p(thesis) p(true)  "
