@@ -203,10 +203,11 @@ def test_that_a_finished_efficient_study_run_again_adds_nothing(tmp_path: Path) 
 
     db = tmp_path / "f.db"
     cmd = ["optimize", "--tasks", "nav-flat", "--xi", "3", "--gait", "goto", "--recipe", "efficient", "--trials",
-           "30", "--batch", "12", "--seed", "2", "--workers", "2", "--storage", f"sqlite:///{db}", "--study", "f"]
+           "40", "--batch", "12", "--seed", "3", "--workers", "2", "--storage", f"sqlite:///{db}", "--study", "f"]
     tb_ok(*cmd, "--quiet")
     study = load(db, "f")
-    assert not _top_is_promoted(study, Objective({"nav-flat": 1.0}, 3.0), 3, 3.0)  # what used to be promoted again
+    # what used to be promoted again (a study whose GP moves this way: most seeds' do not)
+    assert not _top_is_promoted(study, Objective({"nav-flat": 1.0}, 3.0), 3, 3.0)
     promoted, spent, best = set(promotions(study)), episode_count(study), best_candidate(study)
     again = tb_ok(*cmd)
     assert "(0 episodes this run)" in again.stdout
