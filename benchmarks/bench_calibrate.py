@@ -48,6 +48,12 @@ keeps its results in ``--out`` and a second run reuses them; the summary, with e
 fitted profile and every decision's optima, goes to ``--json``
 (``benchmarks/results/calibrate.json``). The figures, with date and machine, go into
 ``docs/physics.md`` (the latest run) and ``docs/research/calibration-runs.md`` (every run).
+
+``--decision-from SUMMARY`` measures the decision stage alone on the fitted profiles an
+earlier run left in its summary (after a change to the optimiser, say): no twin and no
+calibration, the other stages' results carried over and dated as theirs
+(``calibration_stages``), the studies in ``--out``. ``--decision-batch`` sets the studies'
+full batch.
 """
 
 from __future__ import annotations
@@ -416,10 +422,13 @@ def main() -> int:
               f"{r.get('q_fitted', nan):9.3f} "
               f"{r.get('q_thesis', nan):9.3f} {r.get('q_true', nan):7.3f}  {_tally(r, 0)}  {_tally(r, 2)}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
-                                     f"({os.cpu_count()} cores, {platform.processor() or platform.machine()})",
-                                     "args": {k: str(v) for k, v in vars(args).items()}, "worlds": rows},
-                                    indent=2, default=_plain) + "\n")
+    summary: dict[str, Any] = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
+                               f"({os.cpu_count()} cores, {platform.processor() or platform.machine()})",
+                               "args": {k: str(v) for k, v in vars(args).items()}, "worlds": rows}
+    if earlier is not None:  # the twin and calibration stages are the earlier run's
+        summary["calibration_stages"] = earlier.get("calibration_stages", {"date": earlier["date"],
+                                                                           "machine": earlier["machine"]})
+    args.json.write_text(json.dumps(summary, indent=2, default=_plain) + "\n")
     print(f"wrote {args.json}")
     return 0 if all(r["recovery"] for r in rows) else 1
 

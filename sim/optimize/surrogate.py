@@ -261,10 +261,10 @@ def screening_bias(obs: Sequence[Observation], U: np.ndarray, noise: np.ndarray)
 
 
 #: The share of the observations whose batch means the GP sees raised to the least of the
-#: rest. A design whose legs barely clear the pivot radius can score R = -0.85 on its screen,
+#: rest. A design whose legs barely clear the pivot radius can score R = -0.68 on its screen,
 #: where the plateau of good designs lies within 0.85..0.95; a stationary GP carries such a
 #: hole far along the plateau (one study, with one such screen at l = 0.068 m, read the
-#: good l = 0.09 m as 0.76 with an sd of 0.04, never screened it, and settled on 0.105 m,
+#: good l = 0.09 m as 0.76 with an sd of 0.05, never screened it, and settled on 0.105 m,
 #: 1.7 % worse). Capped, the failure still reads as the study's worst, and only as bad as
 #: its bottom tenth, while the plateau keeps its own shape.
 CAP_QUANTILE = 0.1
