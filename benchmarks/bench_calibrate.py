@@ -175,7 +175,11 @@ def open_loop(holdout: Path, fitted: PhysicsProfile, truth: PhysicsProfile, gait
     return q_fit, q_thesis, q_true
 
 
-def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0, batch: int = 48
+#: The decision studies' full batch by default; studies of another batch are named apart.
+DECISION_BATCH = 48
+
+
+def optimum(folder: Path, profile: Path, study: str, trials: int, seed: int = 0, batch: int = DECISION_BATCH
             ) -> tuple[float, ...]:
     """The design ``optimize --physics PROFILE --seed SEED`` finds (resumed if the study exists)."""
     summary = folder / f"optimum-{study}.json"  # not the profile files beside it
@@ -218,7 +222,7 @@ def paired(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: int, seeds: int,
-             batch: int = 48, episodes: int = 480) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
+             batch: int = DECISION_BATCH, episodes: int = 480) -> tuple[tuple[int, int, int], list[dict[str, Any]]]:
     """Optimise under the fitted and under the true profile with each optimiser seed; each
     pair of optima on the same episodes under the truth. Returns (seeds where the fitted
     optimum ties or beats the true one, seeds, pairs of true-profile studies of
@@ -230,7 +234,7 @@ def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: 
     # the fitted profile's hash names its studies and scores, so that a calibration made
     # again into the same --out (a changed profile) never resumes or reuses the old ones
     tag = f"fitted-{fitted_profile.digest()[:8]}"
-    b = "" if batch == 48 else f"-b{batch}"  # a study keeps its batch: another batch, other studies
+    b = "" if batch == DECISION_BATCH else f"-b{batch}"  # a study keeps its batch: another batch, other studies
     fitted_w = [optimum(folder, fitted, f"{tag}{b}-s{s}", trials, s, batch) for s in range(seeds)]
     true_w = [optimum(folder, world, f"true{b}-s{s}", trials, s, batch) for s in range(seeds)]
     f_fit = [objectives(w, world, folder, episodes) for w in fitted_w]
@@ -368,8 +372,8 @@ def main() -> int:
     ap.add_argument("--only", type=int, help="run only this hidden world (0, 1, 2)")
     ap.add_argument("--decision-trials", type=int, default=100,
                     help="trials of each optimisation in the decision stage (100; 0 skips it)")
-    ap.add_argument("--decision-batch", type=int, default=48,
-                    help="full batch of each optimisation in the decision stage (48; screening batch 4 "
+    ap.add_argument("--decision-batch", type=int, default=DECISION_BATCH,
+                    help=f"full batch of each optimisation in the decision stage ({DECISION_BATCH}; screening batch 4 "
                          "up to 60, then a fifteenth of it)")
     ap.add_argument("--decision-from", type=Path, metavar="SUMMARY",
                     help="run the decision stage alone on the fitted profiles of an earlier run's summary "
