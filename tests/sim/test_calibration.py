@@ -152,6 +152,20 @@ def test_an_identified_value_searched_together_stays_identified_with_its_interva
     assert "not a confident value" in moved["why"] and not moved["identifiable"]
 
 
+def test_an_identified_value_is_searched_only_where_its_interval_stays_within_a_quarter_of_it() -> None:
+    """The twin under load: a true free speed of 4.5 rad/s, posterior 4.10..5.46 (median
+    4.48). Searched over the whole interval, it was traded down to 4.30, from where 5.46 is
+    27 % above: the search now keeps it where every value passes the ±25 % verdict."""
+    speed = {"identifiable": True, "posterior": [4.10, 4.48, 5.46]}
+    lo, hi = cal._search_range(speed)
+    assert lo == pytest.approx(5.46 / 1.25) and hi == 5.46 and lo < 4.48 < hi
+    for value in np.linspace(lo, hi, 101):
+        assert cal._narrow(4.10, 5.46, float(value)), value
+    assert not cal._narrow(4.10, 5.46, 4.30)
+    # a value the logs leave uncertain is searched over its whole interval
+    assert cal._search_range({"identifiable": False, "posterior": [0.39, 0.47, 0.64]}) == (0.39, 0.64)
+
+
 def test_the_joint_search_moves_a_kept_friction_toward_the_floor_the_logs_were_made_on(tmp_path: Path) -> None:
     """Logs of a slippery floor (friction 0.55) and a profile that kept the prior's 0.9:
     searched in simulation inside its interval, the friction comes out nearer the truth."""
@@ -167,7 +181,7 @@ def test_the_joint_search_moves_a_kept_friction_toward_the_floor_the_logs_were_m
     try:
         fit = cal._Fit(observed, THESIS, sim, settings)
         noise = np.var([fit.stats_of(f) for f in sim.run([(THESIS, 7 + r) for r in range(4)])], axis=0, ddof=1)
-        kept = {"friction": {"value": 0.9, "posterior": [0.45, 0.8, 1.1]}}
+        kept = {"friction": {"value": 0.9, "posterior": [0.45, 0.8, 1.1], "identifiable": False}}
         found = cal._search_together(fit, ["friction"], kept, THESIS, noise + 1e-12)
     finally:
         sim.close()
