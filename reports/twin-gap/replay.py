@@ -9,10 +9,18 @@ MCAP log) with the replay's, and prints how late each of the host's decisions re
 legs (the first leg change toward the decided command, after the decision).
 
 A replay that matches to the bit says that the twin's physics is the simulator's, and
-that the twin differs from ``tumblebot evaluate`` only in when the legs change.
+that the twin differs from ``tumblebot evaluate`` only in when the legs change. A set run
+with ``--world-physics`` is replayed under that hidden profile (its latency is already in
+the logged leg changes).
 
-Run from the repository root: ``.venv/bin/python reports/twin-gap/replay.py TRIAL_SET``
-(a folder written by ``tumblebot twin run``).
+The world draws each trial's randomness (the legs' angles, masses, friction, motor noise)
+from the set's seed, so a set run again repeats its draws. ``--other-seeds N`` replays
+each trial's leg changes with the draws of N other seeds as well, and prints how far each
+trial went from its first leg change to its end: the set's own draws against others at
+the same timing, i.e. how lucky the set was.
+
+Run from the repository root: ``.venv/bin/python reports/twin-gap/replay.py TRIAL_SET
+[--other-seeds N]`` (a folder written by ``tumblebot twin run``).
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ import numpy as np
 
 from tumblebot.host.trial_sets import TrialPlan, load_index
 from tumblebot.host.triallog import read_trial
-from tumblebot.host.twin import twin_servo
+from tumblebot.host.twin import twin_servo, twin_world_physics
 from tumblebot.sim.evaluation.evaluate import episode_seed
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
@@ -71,39 +79,73 @@ def decision_latencies(log: Any, changes: list[Change], hz: int) -> list[float]:
     return out
 
 
+def run(world: TumblerEnv, seed: int, placed: dict[str, Any], changes: list[Change], end: int,
+        published: dict[int, Any] | None = None) -> tuple[float, float]:
+    """One trial rebuilt from its placement and leg changes with the draws of ``seed``, up to
+    substep ``end``: (the most it strays from the ``published`` poses, in m; the distance
+    from the first leg change to the end, in m)."""
+    world.reset(seed=seed, options={"start_xy": (placed["x"], placed["y"]), "start_yaw": placed["yaw"]})
+    world.set_leg_commands(0.0, 0.0)
+    substep, worst = 0, 0.0
+    first: tuple[float, float, float] | None = None
+    for until, right, left in [*changes, (end, None, None)]:
+        while substep < until:
+            world.advance(1)
+            substep += 1
+            if published is not None and substep in published:
+                worst = max(worst, math.dist(world.base_pose()[0], published[substep]))
+        if first is None:
+            first = world.base_pose()[0]
+        if right is not None and left is not None:
+            world.set_leg_commands(right, left)
+    last = world.base_pose()[0]
+    assert first is not None  # the loop ran at least once
+    return worst, math.hypot(last[0] - first[0], last[1] - first[1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="a trial set written by tumblebot twin run")
+    parser.add_argument("--other-seeds", type=int, default=0, metavar="N",
+                        help="also replay each trial with the draws of N other sets' seeds (default 0)")
     args = parser.parse_args()
+    if args.other_seeds < 0:
+        parser.error("--other-seeds must be 0 or more")
     plan = TrialPlan.from_json(json.loads((args.folder / "plan.json").read_text()))
     index = {int(e["trial"]): e for e in load_index(args.folder)["trials"]}
-    servo = twin_servo(args.folder)
-    world = TumblerEnv(task="nav-flat", design=Design(*plan.design),
-                       randomization=replace(servo.randomization(Randomization(design=False)), latency=(0.0, 0.0)),
-                       **servo.env_kwargs())
+    profile = twin_world_physics(args.folder)
+    if profile is None:  # the chain itself is the latency: none is added
+        servo = twin_servo(args.folder)
+        randomization = replace(servo.randomization(Randomization(design=False)), latency=(0.0, 0.0))
+        kwargs = servo.env_kwargs()
+    else:  # a hidden world's latency is already in the logged leg changes
+        randomization, kwargs = profile.randomization(Randomization(design=False)), profile.env_kwargs()
+    world = TumblerEnv(task="nav-flat", design=Design(*plan.design), randomization=randomization, **kwargs)
+    own, others = [], []
     try:
         for trial, (placed, changes) in sorted(world_log(args.folder).items()):
             if trial not in index:
                 continue  # an aborted attempt: the finished one is placed again later
             log = read_trial(args.folder / index[trial]["file"])
             published = {round(m.data["source_time"] * world.physics_hz): m.data["p"] for m in log.topic("/pose")}
-            world.reset(seed=episode_seed(plan.seed, trial),
-                        options={"start_xy": (placed["x"], placed["y"]), "start_yaw": placed["yaw"]})
-            world.set_leg_commands(0.0, 0.0)
-            substep, worst = 0, 0.0
-            for until, right, left in [*changes, (max(published), None, None)]:
-                while substep < until:
-                    world.advance(1)
-                    substep += 1
-                    if substep in published:
-                        worst = max(worst, math.dist(world.base_pose()[0], published[substep]))
-                if right is not None and left is not None:
-                    world.set_leg_commands(right, left)
+            end = max(published)
+            worst, went = run(world, episode_seed(plan.seed, trial), placed, changes, end, published)
             late = decision_latencies(log, changes, world.physics_hz)
-            print(f"trial {trial}: {len(published)} poses, replay off by at most {worst:.6f} m; "
-                  f"decisions reached the legs after {', '.join(f'{ms:.0f}' for ms in late)} ms")
+            line = (f"trial {trial}: {len(published)} poses, replay off by at most {worst:.6f} m; "
+                    f"decisions reached the legs after {', '.join(f'{ms:.0f}' for ms in late)} ms")
+            if args.other_seeds:
+                drawn = [run(world, episode_seed(plan.seed + 1 + k, trial), placed, changes, end)[1]
+                         for k in range(args.other_seeds)]
+                own.append(went)
+                others.append(float(np.mean(drawn)))
+                line += f"; went {went:.3f} m, with other draws {others[-1]:.3f} m"
+            print(line, flush=True)
     finally:
         world.close()
+    if own:
+        print(f"mean distance from the first leg change to the end: {np.mean(own):.3f} m with the set's own draws, "
+              f"{np.mean(others):.3f} m with {args.other_seeds} other seeds' (seeds {plan.seed + 1}.."
+              f"{plan.seed + args.other_seeds}), over {len(own)} trials")
 
 
 if __name__ == "__main__":
