@@ -217,7 +217,7 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     stack is not told about (its servo, floor, extra radio latency and motor noise),
     instead of ``servo``."""
     uno = _start_emulator(serial_link)
-    env = _world_env(design, servo, physics)
+    env = world_env(design, servo, physics)
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(control)
     ctl.setblocking(False)
@@ -254,7 +254,10 @@ def run_world(pose_to: tuple[str, int], control: tuple[str, int], serial_link: P
     return 0
 
 
-def _world_env(design: Design, servo: PhysicsProfile | None, physics: PhysicsProfile | None) -> Any:
+def world_env(design: Design, servo: PhysicsProfile | None, physics: PhysicsProfile | None) -> Any:
+    """The twin world's environment: under a hidden ``physics`` profile (its latency on top
+    of the chain's own), or else under ``servo`` with no latency added (the chain is the
+    latency). ``reports/twin-gap/replay.py`` rebuilds trials in the same one."""
     from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.randomization import Randomization
 

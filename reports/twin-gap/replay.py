@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -36,11 +35,10 @@ import numpy as np
 
 from tumblebot.host.trial_sets import TrialPlan, load_index
 from tumblebot.host.triallog import read_trial
-from tumblebot.host.twin import twin_servo, twin_world_physics
+from tumblebot.host.twin import twin_servo, twin_world_physics, world_env
 from tumblebot.sim.evaluation.evaluate import episode_seed
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
-from tumblebot.sim.world.randomization import Randomization
 
 Change = tuple[int, float, float]  # substep, right, left
 
@@ -113,14 +111,9 @@ def main() -> None:
         parser.error("--other-seeds must be 0 or more")
     plan = TrialPlan.from_json(json.loads((args.folder / "plan.json").read_text()))
     index = {int(e["trial"]): e for e in load_index(args.folder)["trials"]}
-    profile = twin_world_physics(args.folder)
-    if profile is None:  # the chain itself is the latency: none is added
-        servo = twin_servo(args.folder)
-        randomization = replace(servo.randomization(Randomization(design=False)), latency=(0.0, 0.0))
-        kwargs = servo.env_kwargs()
-    else:  # a hidden world's latency is already in the logged leg changes
-        randomization, kwargs = profile.randomization(Randomization(design=False)), profile.env_kwargs()
-    world = TumblerEnv(task="nav-flat", design=Design(*plan.design), randomization=randomization, **kwargs)
+    # the world the twin ran; a hidden world's latency only delays commands given to step(),
+    # and is already in the logged leg changes
+    world = world_env(Design(*plan.design), twin_servo(args.folder), twin_world_physics(args.folder))
     own, others = [], []
     try:
         for trial, (placed, changes) in sorted(world_log(args.folder).items()):
