@@ -82,6 +82,19 @@ def test_statistics_need_enough_steps_of_a_kind() -> None:
     assert "drive distance" in stats and not any(k.startswith("spin") for k in stats)
 
 
+def test_statistics_hold_the_spreads_asked_for_and_refuse_others() -> None:
+    f = np.array([[0, 0.2, 0.0, 0.5], [0, 0.4, 0.2, 0.5]] * cal.MIN_STEPS
+                 + [[1, 0.1, 0.3, 0.5], [1, 0.1, 0.5, 0.5]] * cal.MIN_STEPS)
+    default = cal.statistics([f])
+    assert default["drive distance sd"] == pytest.approx(0.1) and default["spin turn sd"] == pytest.approx(0.1)
+    assert "spin distance sd" not in default and "drive turn sd" not in default
+    stats = cal.statistics([f], ("spin turn",))
+    assert stats["spin turn sd"] == pytest.approx(0.1) and "drive distance sd" not in stats
+    for bad in (("drive speed",), ("walk turn",), ("drive",)):
+        with pytest.raises(cal.CalibrationError, match="no such spread"):
+            cal.Settings(spreads=bad)
+
+
 def test_latency_moves_its_mean_and_keeps_the_spread() -> None:
     p = next(p for p in cal.PARAMETERS if p.name == "latency")
     moved = p.apply(THESIS, 0.1)
