@@ -223,8 +223,8 @@ SPREADS: tuple[str, ...] = ("drive distance", "spin turn")
 
 def check_spreads(spreads: Sequence[str]) -> None:
     """Refuses a spread :func:`statistics` cannot take (one error naming them)."""
-    unknown = [s for s in spreads if len(s.split(" ")) != 2 or s.split(" ")[0] not in CLASSES
-               or s.split(" ")[1] not in ("distance", "turn")]
+    unknown = [s for s in spreads if s.count(" ") != 1 or s.partition(" ")[0] not in CLASSES
+               or s.partition(" ")[2] not in ("distance", "turn")]
     if unknown:
         raise CalibrationError(f"no such spread: {', '.join(map(repr, unknown))} (KIND distance or KIND turn, "
                                f"KIND one of {', '.join(CLASSES)})")
@@ -233,9 +233,9 @@ def check_spreads(spreads: Sequence[str]) -> None:
 def statistics(features: Sequence[np.ndarray], spreads: Sequence[str] = SPREADS) -> dict[str, float]:
     """The summary the fit matches: per kind of command with :data:`MIN_STEPS` steps or
     more, the mean distance and turn of a step; the spreads named in ``spreads`` (``"KIND
-    distance"`` or ``"KIND turn"``, by default the drives' distance and the spins' turn); for drives how soon
-    they get under way (mean time to half distance); for drives from rest and one-leg steps
-    that time too."""
+    distance"`` or ``"KIND turn"``, by default the drives' distance and the spins' turn);
+    for drives how soon they get under way (mean time to half distance); for drives from
+    rest and one-leg steps that time too."""
     check_spreads(spreads)
     f = np.vstack(features)
     out: dict[str, float] = {}

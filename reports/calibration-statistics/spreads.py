@@ -35,7 +35,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 from bench_calibrate import HIDDEN, replay_prediction  # noqa: E402
 
-from tumblebot.host.calibrate import load_trials  # noqa: E402
+from tumblebot.host.calibrate import LoggedTrial, load_trials  # noqa: E402
 from tumblebot.sim.calibration import PARAMETERS, SPREADS, Settings, Simulator, calibrate, profile_at  # noqa: E402
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile  # noqa: E402
 
@@ -48,9 +48,9 @@ VARIANTS: dict[str, tuple[str, ...]] = {
 }
 
 
-def fit(folder: Path, spreads: tuple[str, ...]) -> tuple[dict[str, dict[str, Any]], PhysicsProfile, float]:
-    """The world's identification trials calibrated with ``spreads``: parameters, profile, misfit."""
-    trials = load_trials([folder / "excite"])
+def fit(folder: Path, trials: list[LoggedTrial], spreads: tuple[str, ...]
+        ) -> tuple[dict[str, dict[str, Any]], PhysicsProfile, float]:
+    """The world's identification ``trials`` calibrated with ``spreads``: parameters, profile, misfit."""
     sim = Simulator([t.trace for t in trials], 2, folder / ".spreads-cache.jsonl")
     try:
         cal = calibrate([t.trace for t in trials], [t.track for t in trials], THESIS, "fitted", sim,
@@ -82,10 +82,15 @@ def main() -> int:
     for folder in folders:
         truth = PhysicsProfile.load(str(folder / "world.json"))
         print(f"\n{truth.describe()}")
+        trials = load_trials([folder / "excite"])
         for name in variants:
-            parameters, profile, misfit = fit(folder, VARIANTS[name])
-            held = folder / "holdout-pulse"
-            logged, [(fitted_med, q_fit), (true_med, q_true)] = replay_prediction(held, (profile, truth))
+            parameters, profile, misfit = fit(folder, trials, VARIANTS[name])
+            swapped = [profile_at(profile, {param.name: param.value(truth)}) for param in PARAMETERS] \
+                if args.swap and name == "drives" else []
+            # one reading of the held-out trials for every profile (each profile's replays
+            # have their own seeds, so the order does not matter)
+            logged, [(fitted_med, q_fit), (true_med, q_true), *swaps] = replay_prediction(
+                folder / "holdout-pulse", (profile, truth, *swapped))
             print(f"  {name} ({', '.join(f'{s} sd' for s in VARIANTS[name])}): misfit {misfit:.2f}; held-out pulse "
                   f"trials, logged median {logged:.3f} m, fitted {fitted_med:.3f} m (p = {q_fit:.3f}), "
                   f"true profile {true_med:.3f} m (p = {q_true:.3f})")
@@ -94,11 +99,8 @@ def main() -> int:
                 verdict = "identified" if e["identifiable"] else "not identified"
                 print(f"    {param.name:18s} true {param.value(truth):6.3g}  fitted {e['value']:6.3g}  "
                       f"90 % {e['low']:6.3g}..{e['high']:<6.3g}  {verdict}")
-            if args.swap and name == "drives":
-                for param in PARAMETERS:
-                    swapped = profile_at(profile, {param.name: param.value(truth)})
-                    _, [(med, q)] = replay_prediction(held, (swapped,))
-                    print(f"    with the true {param.name}: {med:.3f} m (p = {q:.3f})")
+            for param, (med, q) in zip(PARAMETERS, swaps, strict=False):
+                print(f"    with the true {param.name}: {med:.3f} m (p = {q:.3f})")
     return 0
 
 
