@@ -1,0 +1,85 @@
+"""reports/policy-headroom/planners.py: the hand-written alternatives to ``plan`` it measures."""
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from tumblebot.defaults import XI3_ROBOT
+from tumblebot.sim.control.goto import NAVIGATORS, SPIN_NEGATIVE, SPIN_POSITIVE, GotoController
+from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
+from tumblebot.sim.world.design import Design
+from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.randomization import Randomization
+
+SCRIPT = Path(__file__).resolve().parents[2] / "reports" / "policy-headroom" / "planners.py"
+
+
+@pytest.fixture(scope="module")
+def planners() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("planners", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["planners"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_that_each_controller_name_builds_the_controller_it_names(planners: ModuleType) -> None:
+    assert planners.controller("plan").config == NAVIGATORS["plan"]
+    assert planners.controller("goto").config == NAVIGATORS["goto"]
+    assert planners.controller("turn_tolerance=0.5;memory=0.3").config.turn_tolerance == 0.5
+    assert isinstance(planners.controller("near=1"), planners.NoSpinNearGoal)
+    assert planners.controller("predict=0.02").spin_cost == 0.02
+    with pytest.raises(ValueError, match="expected goto"):
+        planners.controller("nonsense=1")
+
+
+def _actions(controller: GotoController, env: TumblerEnv, seed: int) -> tuple[list[tuple[int, int]], float]:
+    taken: list[tuple[int, int]] = []
+
+    def on_step(step: int, action: np.ndarray, obs: np.ndarray, info: dict[str, object]) -> None:
+        taken.append((int(action[0]), int(action[1])))
+
+    out = run_episode(env, GotoActor(controller), seed, {"design": Design(*XI3_ROBOT)}, on_step)
+    return taken, out.final_R
+
+
+def test_that_near_spins_as_plan_far_from_the_goal_and_never_within_its_reach(planners: ModuleType) -> None:
+    env = TumblerEnv(task="nav-flat", randomization=Randomization(design=False))
+    try:
+        spun = False
+        for seed in range(4):
+            plan, plan_R = _actions(planners.controller("plan"), env, seed)
+            assert _actions(planners.controller("near=0"), env, seed) == (plan, plan_R)
+            spun |= any(a in (SPIN_POSITIVE, SPIN_NEGATIVE) for a in plan)
+            never, _ = _actions(planners.controller("near=100"), env, seed)  # the ring is closer than 100 steps
+            assert not any(a in (SPIN_POSITIVE, SPIN_NEGATIVE) for a in never)
+        assert spun
+    finally:
+        env.close()
+
+
+def test_that_predict_spins_drives_and_stops_in_real_episodes(planners: ModuleType) -> None:
+    env = TumblerEnv(task="nav-flat", randomization=Randomization(design=False))
+    try:
+        seen: set[tuple[int, int]] = set()
+        for seed in range(4):
+            actions, R = _actions(planners.controller("predict=0.02"), env, seed)
+            seen |= set(actions)
+            assert actions[-1] == (1, 1) and np.isfinite(R)  # the last step stops
+        assert {(2, 2), (0, 0)} & seen and {SPIN_POSITIVE, SPIN_NEGATIVE} & seen
+    finally:
+        env.close()
+
+
+def test_that_the_script_prints_one_row_per_design_and_refuses_an_unknown_controller(
+        planners: ModuleType, capsys: pytest.CaptureFixture[str]) -> None:
+    assert planners.main(["--designs", "1", "--episodes", "2", "--workers", "1", "--controller", "near=1"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1].startswith("mean over the designs") and len(out) == 4
+    assert planners.main(["--controller", "bogus", "--designs", "1"]) == 2
+    assert "planners: " in capsys.readouterr().err
