@@ -47,6 +47,7 @@ from tumblebot.sim.control.goto import (
     wrap_angle,
 )
 from tumblebot.sim.observation import POSITION, QUATERNION
+from tumblebot.sim.world.design import Design, tumbling_designs
 
 _ENV: dict[str, Any] = {}
 
@@ -143,7 +144,6 @@ def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[fl
     """Final R of one episode under ``plan`` and then each named controller."""
     from tumblebot.sim.control.drivers import episode_seed
     from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
-    from tumblebot.sim.world.design import Design
     from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.physics import THESIS
     from tumblebot.sim.world.randomization import Randomization
@@ -157,12 +157,27 @@ def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[fl
             for name in ["plan", *names]]
 
 
+def _designs(count: int, seed: int, reach_below: float | None) -> list[Design]:
+    """The first ``count`` designs that can tumble drawn with ``seed``, those whose l/r is
+    below ``reach_below`` only when it is given (the same draws, filtered)."""
+    if reach_below is None:
+        return tumbling_designs(count, seed)
+    out: list[Design] = []
+    drawn = 0
+    while len(out) < count:
+        drawn += 4 * count
+        out = [d for d in tumbling_designs(drawn, seed) if d.l / d.pivot_radius < reach_below][:count]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
     parser.add_argument("--controller", action="append", required=True, help="a controller to pair with plan")
     parser.add_argument("--designs", type=int, default=12)
     parser.add_argument("--design-seed", type=int, default=11)
+    parser.add_argument("--reach-below", type=float, metavar="L/R",
+                        help="keep only designs whose legs reach less than this many pivot radii (l/r)")
     parser.add_argument("--episodes", type=int, default=32)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--workers", type=int, default=2, help="worker processes (2; 1 runs in this process)")
@@ -176,17 +191,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.designs < 1 or args.episodes < 2 or args.workers < 1:
         print("planners: need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1", file=sys.stderr)
         return 2
-    from tumblebot.sim.world.design import tumbling_designs
-
+    if args.reach_below is not None and args.reach_below <= 1.0:
+        print("planners: --reach-below must exceed 1 (legs shorter than the pivot radius cannot tumble)",
+              file=sys.stderr)
+        return 2
     names = args.controller
-    print(f"{args.task}, {args.designs} designs drawn with seed {args.design_seed}, {args.episodes} paired "
+    print(f"{args.task}, {args.designs} designs drawn with seed {args.design_seed}"
+          + (f" with l/r below {args.reach_below}" if args.reach_below is not None else "")
+          + f", {args.episodes} paired "
           f"episodes each (seed {args.seed}): plan's mean final R and each controller's difference (± s.e.)")
     print(f"{'design (x, y, z, l)':30s} {'l/r':>4s} {'plan':>6s}  " + "  ".join(f"{n:>18s}" for n in names))
     rows = []
     with contextlib.ExitStack() as stack:  # --workers 1 runs in this process
         pool = (stack.enter_context(multiprocessing.get_context("forkserver").Pool(args.workers))
                 if args.workers > 1 else None)
-        for design in tumbling_designs(args.designs, args.design_seed):
+        for design in _designs(args.designs, args.design_seed, args.reach_below):
             jobs = [(args.task, design.as_tuple(), args.seed, i, names) for i in range(args.episodes)]
             R = np.array(pool.map(_episode, jobs, chunksize=4) if pool is not None else [_episode(j) for j in jobs])
             diff = R[:, 1:] - R[:, :1]
