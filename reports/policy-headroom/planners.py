@@ -37,16 +37,13 @@ from tumblebot.sim.control.goto import (
     MIN_STEP_LENGTH,
     NAVIGATION_TASKS,
     NAVIGATORS,
-    REVERSE,
     STALLED_RATE,
     STOP,
     Action,
     GotoConfig,
     GotoController,
-    heading,
-    wrap_angle,
 )
-from tumblebot.sim.observation import POSITION, QUATERNION
+from tumblebot.sim.observation import POSITION
 from tumblebot.sim.world.design import Design, tumbling_designs
 
 _ENV: dict[str, Any] = {}
@@ -88,20 +85,14 @@ class PredictingPlanner(GotoController):
 
     def act(self, obs: np.ndarray, step: int) -> Action:
         cfg = self.config
-        position = np.asarray(obs[POSITION][:2], dtype=float)
-        psi = heading(np.asarray(obs[QUATERNION]))
-        self.motion.observe(position, psi, self._action)
+        position, psi = self.observe(obs)
         distance = float(np.hypot(*position))
         steps_left = cfg.episode_steps - step
         length = max(self.step_length, MIN_STEP_LENGTH)
         active = steps_left - 1  # the last step stops
         action = STOP
         if distance >= cfg.stop_fraction * length and active >= 1:
-            bearing = math.atan2(-position[1], -position[0])
-            error_forward = wrap_angle(bearing - (psi - math.pi / 2))
-            error_reverse = wrap_angle(bearing - (psi + math.pi / 2))
-            error, drive = ((error_forward, FORWARD) if abs(error_forward) <= abs(error_reverse)
-                            else (error_reverse, REVERSE))
+            error, drive = self.drive_toward_goal(position, psi)
             offset = -math.pi / 2 if drive == FORWARD else math.pi / 2
             end, drives = self._closest(position, psi + offset, length, active)
             options: list[tuple[float, Action]] = [(distance, STOP)]

@@ -171,22 +171,34 @@ class GotoController:
         if self._action is not None:
             self._action = (int(action[0]), int(action[1]))
 
-    def act(self, obs: np.ndarray, step: int) -> Action:
-        """The action for step ``step`` given the observation before it."""
-        cfg = self.config
+    def observe(self, obs: np.ndarray) -> tuple[np.ndarray, float]:
+        """The robot's (x, y) and heading in ``obs``, after the estimates have learnt from
+        the step that led there."""
         position = np.asarray(obs[POSITION][:2], dtype=float)
         psi = heading(np.asarray(obs[QUATERNION]))
         self.motion.observe(position, psi, self._action)
+        return position, psi
+
+    @staticmethod
+    def drive_toward_goal(position: np.ndarray, psi: float) -> tuple[float, Action]:
+        """The drive (forward or reverse) that points closer to the goal, with its heading
+        error (rad)."""
+        bearing = math.atan2(-position[1], -position[0])
+        error_forward = wrap_angle(bearing - (psi - math.pi / 2))
+        error_reverse = wrap_angle(bearing - (psi + math.pi / 2))
+        return ((error_forward, FORWARD) if abs(error_forward) <= abs(error_reverse)
+                else (error_reverse, REVERSE))
+
+    def act(self, obs: np.ndarray, step: int) -> Action:
+        """The action for step ``step`` given the observation before it."""
+        cfg = self.config
+        position, psi = self.observe(obs)
         distance = float(np.hypot(*position))
         steps_left = cfg.episode_steps - step
         length = max(self.step_length, MIN_STEP_LENGTH)
         action = STOP
         if distance >= cfg.stop_fraction * length and steps_left > 1:
-            bearing = math.atan2(-position[1], -position[0])
-            error_forward = wrap_angle(bearing - (psi - math.pi / 2))
-            error_reverse = wrap_angle(bearing - (psi + math.pi / 2))
-            error, drive = ((error_forward, FORWARD) if abs(error_forward) <= abs(error_reverse)
-                            else (error_reverse, REVERSE))
+            error, drive = self.drive_toward_goal(position, psi)
             after = math.sqrt(max(distance**2 + length**2 - 2 * distance * length * math.cos(error), 0.0))
             gain = distance - after
             if abs(error) > cfg.turn_tolerance and steps_left > cfg.spin_steps_left:
