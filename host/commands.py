@@ -529,9 +529,10 @@ def _add_trial_commands(sub: Any, positive_int: Any) -> None:
     r.add_argument("--key", type=Path, required=True, help="the shared 32-byte key file (mode 600)")
     r.add_argument("--design", required=True, help="the robot's design x,y,z,l (m), for its e(w) and the records")
     r.add_argument("--policy", default=None, help="nav-flat (the bundled policy, the default) or an ONNX file")
-    r.add_argument("--gait", default=None, metavar="goto|plan|GAIT",
-                   help="drive the trials with goto or plan, the hand-written closed-loop controllers, or with a "
-                        "scripted gait (excite: the identification run of tumblebot calibrate), instead of a policy")
+    r.add_argument("--gait", default=None, metavar="goto|plan|plan-short|GAIT",
+                   help="drive the trials with goto, plan or plan-short, the hand-written closed-loop controllers, "
+                        "or with a scripted gait (excite: the identification run of tumblebot calibrate), instead of a "
+                        "policy")
     r.add_argument("--setpoint", type=_xy, default=(0.0, 0.0), help="lab-frame goal X,Y (default 0,0)")
     r.add_argument("--heading", type=float, default=0.0, help="lab-frame heading (rad) of the task frame's +x")
     r.add_argument("--radius", type=float, default=1.5, help="start circle radius, m (default 1.5)")

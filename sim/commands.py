@@ -205,8 +205,8 @@ def _add_sim_command(sub: Subcommands) -> None:
     p.add_argument("--task", default="nav-flat", help=TASK_CHOICES)
     p.add_argument("--design", default=XI3_ROBOT_TEXT, metavar="X,Y,Z,L", help="design in metres")
     p.add_argument("--gait", default="forward",
-                   help="forward, reverse, alternate, pulse, spin, stop, random, excite, or goto or plan (the "
-                        "closed-loop navigation controllers; nav-flat and nav-terrain only)")
+                   help="forward, reverse, alternate, pulse, spin, stop, random, excite, or goto, plan or "
+                        "plan-short (the closed-loop navigation controllers; nav-flat and nav-terrain only)")
     p.add_argument("--seed", type=seed_type, default=0, help="episode seed (start pose, terrain, noise)")
     add_servo_arguments(p)
     p.add_argument("--randomize", action="store_true",
@@ -229,8 +229,8 @@ def _add_evaluate_command(sub: Subcommands) -> None:
     p.add_argument("--workers", type=int, default=1, help="worker processes")
     p.add_argument("--policy", type=Path, default=None, help="ONNX policy (default: the bundled one)")
     p.add_argument("--gait", default=None,
-                   help="evaluate a scripted gait (forward, spin, …) or goto or plan, the closed-loop navigation "
-                        "controllers, instead of a policy")
+                   help="evaluate a scripted gait (forward, spin, …) or goto, plan or plan-short, the closed-loop "
+                        "navigation controllers, instead of a policy")
     add_servo_arguments(p)
     add_mismatch_argument(p)
     p.add_argument("--xi", type=float, default=None, help="also report f = R/(e+1)^xi")

@@ -1,7 +1,7 @@
 """The policies' observation layouts, each declared once as named fields.
 
 The environment's observation is the thesis's 9 numbers (:data:`OBS_LAYOUT`). A policy
-takes one of six layouts (:data:`LAYOUTS`):
+takes one of seven layouts (:data:`LAYOUTS`):
 
 * ``thesis``: the thesis's 9 numbers (position, orientation quaternion, last command).
 * ``context``: those 9, then what the deployed host also knows (:data:`CONTEXT_FIELDS`):
@@ -26,6 +26,10 @@ takes one of six layouts (:data:`LAYOUTS`):
   estimates (:data:`PLAN_GOTO`, the first one's also giving the memory fields, and
   :data:`PLAN_DUAL_GOTO`): the input of a student of ``plan``, the stronger hand-written
   controller.
+* ``tri-plan``: the fields of ``dual-plan``, then the action of a third ``goto`` with
+  ``plan``'s estimates and the wider turning of :data:`PLAN_SHORT_GOTO`
+  (:data:`TRI_FIELDS`), which drives bodies whose legs barely tumble them better than
+  ``plan`` does.
 
 Code that reads a part of an observation asks for it by name (:func:`field_index`,
 :func:`fields_slice`), never by a hand-counted offset. This module imports nothing of
@@ -44,6 +48,7 @@ CONTEXT_FIELDS: tuple[str, ...] = ("design_x", "design_y", "design_z", "design_l
 MEMORY_FIELDS: tuple[str, ...] = ("memory_step_length", "memory_spin_positive", "memory_spin_negative")
 RESIDUAL_FIELDS: tuple[str, ...] = ("goto_right", "goto_left")
 DUAL_FIELDS: tuple[str, ...] = ("goto2_right", "goto2_left")
+TRI_FIELDS: tuple[str, ...] = ("goto3_right", "goto3_left")
 LAYOUTS: dict[str, tuple[str, ...]] = {"thesis": OBS_LAYOUT, "context": OBS_LAYOUT + CONTEXT_FIELDS,
                                        "memory": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS,
                                        "residual": OBS_LAYOUT + CONTEXT_FIELDS + MEMORY_FIELDS + RESIDUAL_FIELDS,
@@ -61,19 +66,29 @@ DUAL_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "turn_tolerance": 0.3, "spin_steps
 #: of :data:`DUAL_GOTO`, which the thesis's robots prefer.
 PLAN_GOTO: dict[str, Any] = {**RESIDUAL_GOTO, "memory": 0.25, "spin_steps_left": 3}
 PLAN_DUAL_GOTO: dict[str, Any] = {**PLAN_GOTO, "turn_tolerance": 0.3, "spin_steps_left": 4}
+#: ``plan``'s estimates with a wider turning tolerance (it drives before the body faces the
+#: goal as closely), which gains on bodies with short legs (l / r below about 1.2) and loses
+#: on the rest: the ``tri-plan`` layout's third goto, and the ``plan-short`` controller.
+PLAN_SHORT_GOTO: dict[str, Any] = {**PLAN_GOTO, "turn_tolerance": 0.6}
 LAYOUTS["dual-plan"] = LAYOUTS["dual"]
+LAYOUTS["tri-plan"] = LAYOUTS["dual"] + TRI_FIELDS
 #: The layouts given goto's actions: the settings of each goto, in the order of their fields
 #: (the first one's running estimates are the memory fields).
 GOTO_SETTINGS: dict[str, tuple[dict[str, Any], ...]] = {"residual": (RESIDUAL_GOTO,),
                                                         "dual": (RESIDUAL_GOTO, DUAL_GOTO),
-                                                        "dual-plan": (PLAN_GOTO, PLAN_DUAL_GOTO)}
-#: the layouts shown two gotos' actions, whose teacher chooses between them per body
+                                                        "dual-plan": (PLAN_GOTO, PLAN_DUAL_GOTO),
+                                                        "tri-plan": (PLAN_GOTO, PLAN_DUAL_GOTO, PLAN_SHORT_GOTO)}
+#: the layouts shown several gotos' actions, whose teacher chooses among them per body
+#: (:mod:`tumblebot.training.choice`)
+CHOICE_LAYOUTS: tuple[str, ...] = tuple(name for name, gotos in GOTO_SETTINGS.items() if len(gotos) >= 2)
+#: the layouts shown exactly two gotos' actions
 DUAL_LAYOUTS: tuple[str, ...] = tuple(name for name, gotos in GOTO_SETTINGS.items() if len(gotos) == 2)
 
 
 def teacher_name(layout: str) -> str:
     """The hand-written controller a layout's first goto setting is, by its ``--gait`` name:
-    ``plan`` for ``dual-plan`` (whose gotos take plan's estimates), ``goto`` otherwise."""
+    ``plan`` for ``dual-plan`` and ``tri-plan`` (whose gotos take plan's estimates),
+    ``goto`` otherwise."""
     return "plan" if GOTO_SETTINGS.get(layout, (None,))[0] is PLAN_GOTO else "goto"
 
 

@@ -210,9 +210,9 @@ def _add_optimize_command(sub: Subcommands) -> None:
                    help="wrapper for R < 0: the thesis's R/(e+1)^xi or the monotone R*(e+1)^xi (default thesis)")
     p.add_argument("--json", type=Path, help="also write the study summary as JSON to this file")
     p.add_argument("--gait", default=None, metavar="goto|plan",
-                   help="drive the episodes with goto or plan, the hand-written closed-loop navigation controllers "
-                        "(navigation tasks), or a scripted gait, instead of each task's bundled policy; recorded in "
-                        "the study")
+                   help="drive the episodes with goto, plan or plan-short, the hand-written closed-loop navigation "
+                        "controllers (navigation tasks), or a scripted gait, instead of each task's bundled policy; "
+                        "recorded in the study")
     p.add_argument("--policy", action="append", metavar="[TASK=]FILE",
                    help="drive TASK's episodes with this ONNX policy instead of the bundled one (repeat for several "
                         "tasks; a bare FILE needs a single task). The study records each policy's SHA-256 and "

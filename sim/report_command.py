@@ -60,8 +60,8 @@ def _add_report_command(sub: Subcommands) -> None:
     p.add_argument("--seed", type=seed_type, default=1, help="seed of the re-evaluation episodes, which should differ "
                                                        "from the studies' (default 1)")
     p.add_argument("--gait", default=None, metavar="goto|plan",
-                   help="re-evaluate every design with goto or plan (or a gait) instead of the controller the studies "
-                        "used (default: theirs, which must then agree)")
+                   help="re-evaluate every design with goto, plan or plan-short (or a gait) instead of the controller "
+                        "the studies used (default: theirs, which must then agree)")
     p.add_argument("--policy", action="append", metavar="[TASK=]FILE",
                    help="re-evaluate TASK with this ONNX policy instead of the bundled one: the file a study was run "
                         "with (a study records each policy's SHA-256, and the report refuses a policy the studies "

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -27,7 +28,7 @@ from tumblebot.cliargs import (
 )
 from tumblebot.defaults import OBSERVATION_LAYOUTS
 from tumblebot.errors import TumblebotError
-from tumblebot.sim.observation import DUAL_LAYOUTS
+from tumblebot.sim.observation import CHOICE_LAYOUTS
 from tumblebot.sim.world.physics import profile_from_args
 from tumblebot.sim.world.tasks import TASK_CHOICES
 
@@ -329,11 +330,12 @@ def _add_imitate_command(sub: Subcommands) -> None:
                    help="student input: context (the thesis's 9 numbers, the design, the steps left, the previous "
                         "observation), memory (context plus goto's motion estimates), residual (memory plus the "
                         "action goto would take), dual (residual plus the action of goto with its second "
-                        "pinned settings; needs --choice) or dual-plan (dual's fields from two gotos with plan's "
-                        "estimates; needs a --choice swept for it); default context")
+                        "pinned settings; needs --choice), dual-plan (dual's fields from two gotos with plan's "
+                        "estimates; needs a --choice swept for it) or tri-plan (dual-plan plus the action of plan "
+                        "with the wider turning short legs prefer; needs a --choice fitted for it); default context")
     p.add_argument("--choice", type=Path, default=None, metavar="CHOICE.json",
-                   help="with --observation dual or dual-plan: which goto settings suit which body (python -m "
-                        "tumblebot choice fit); the teacher follows the better one on each body")
+                   help="with --observation dual, dual-plan or tri-plan: which goto settings suit which body "
+                        "(tumblebot choice fit); the teacher follows the better one on each body")
     p.add_argument("--envs", type=int, default=None, help="parallel environments (default: one per core)")
     p.add_argument("--seed", type=seed_type, default=0, help="seed (default 0)")
     add_servo_arguments(p)
@@ -389,78 +391,106 @@ def _add_export_command(sub: Subcommands) -> None:
 
 
 def _choice(args: argparse.Namespace) -> int:
-    """``tumblebot choice sweep|fit``: where goto's second setting beats its first, and the
-    teacher's rule fitted to it (:mod:`tumblebot.training.choice`)."""
+    """``tumblebot choice sweep|fit``: where goto's later settings beat its first, and the
+    teacher's rules fitted to it (:mod:`tumblebot.training.choice`)."""
     import numpy as np
 
     from tumblebot.sim.control.goto import check_navigation_task
     from tumblebot.sim.observation import teacher_name
     from tumblebot.sim.world.design import Design, tumbling_designs
-    from tumblebot.training.choice import SEEDING, GotoChoice, read_sweep, sweep
+    from tumblebot.training.choice import SEEDING, GotoChoice, check_compared, reach, read_sweep, sweep
     from tumblebot.training.config import TrainingError
 
     if args.choice_command == "fit":
         check_writable(args.output, "-o")
-        choice = GotoChoice.fit(read_sweep(args.sweep))
+        records = [record for path in args.sweep for record in read_sweep(path)]
+        choice = GotoChoice.fit(records, args.layout)
         args.output.write_text(choice.to_json())
         print(choice.summary())
         return 0
     check_writable(args.out, "--out")
     task = check_navigation_task(args.task)
+    compared = list(check_compared(args.layout, args.compare))
     physics = profile_from_args(args)
     done = read_sweep(args.out) if args.out.exists() else []
-    designs = tumbling_designs(args.designs, args.seed)
+    drawn = tumbling_designs(args.designs, args.seed)
+    indices = [k for k, d in enumerate(drawn) if args.reach_below is None or reach(d.as_tuple())[0] < args.reach_below]
+    designs = [drawn[k] for k in indices]
     for k, record in enumerate(done):  # continue only the same sweep
         if record.get("seeding") != SEEDING:
             raise TrainingError(f"{args.out} was swept by an earlier tumblebot, which seeded each design's "
                                 "episodes its own way: start a new file")
         same = (k < len(designs) and record.get("seed") == args.seed and record.get("episodes") == args.episodes
                 and record.get("physics") == physics.digest() and record.get("layout", "dual") == args.layout
-                and record.get("task", "nav-flat") == task
+                and record.get("task", "nav-flat") == task and record.get("compared", [2]) == compared
+                and record.get("index", k) == indices[k]
                 and np.allclose(record["design"], designs[k].as_tuple()))
         if not same:
+            below = "" if args.reach_below is None else f" --reach-below {args.reach_below:g}"
             raise TrainingError(f"{args.out} holds another sweep (line {k + 1} is not design {k + 1} of "
                                 f"--designs {args.designs} --episodes {args.episodes} --seed {args.seed} "
-                                f"--layout {args.layout} --task {task} under the {physics.describe()})")
+                                f"--layout {args.layout} --compare {' '.join(map(str, compared))}{below} "
+                                f"--task {task} under the {physics.describe()})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     first = teacher_name(args.layout)  # the record's "goto" key is the first setting's R
     with args.out.open("a") as out:
         for record in sweep(designs, args.episodes, args.seed, args.workers, done=len(done), physics=physics,
-                            layout=args.layout, task=task):
+                            layout=args.layout, task=task, compared=compared, indices=indices):
             out.write(json.dumps(record) + "\n")
             out.flush()
-            print(f"{record['index'] + 1}/{len(designs)} {Design.from_sequence(record['design'])}: "
-                  f"{first} {record['goto']:.3f}, second setting {record['difference']:+.3f} ± {record['se']:.3f}",
-                  flush=True)
+            later = ", ".join(f"setting {k} {d:+.3f} ± {e:.3f}" for k, d, e in
+                              zip(record["compared"], record["differences"], record["errors"], strict=True))
+            print(f"{record['index'] + 1}/{len(drawn)} {Design.from_sequence(record['design'])}: "
+                  f"{first} {record['goto']:.3f}, {later}", flush=True)
     return 0
 
 
 def _add_choice_command(sub: Subcommands) -> None:
     """The ``choice`` command: the sweep and the fit behind the bundled navigation policy's teacher."""
-    p = sub.add_parser("choice", help="where goto's second setting beats its first: a sweep over designs, "
-                                      "and the teacher's rule fitted to it (for imitate --choice)",
-                       description="sweep: goto under both pinned settings on designs drawn over the space "
-                                   "(resumable: the same command continues the file). fit: the threshold on "
-                                   "l/r the teacher uses, fitted to a sweep. Ctrl-C stops; the same command "
+    p = sub.add_parser("choice", help="where goto's later settings beat its first: a sweep over designs, "
+                                      "and the teacher's rules fitted to it (for imitate --choice)",
+                       description="sweep: goto under a layout's pinned settings on designs drawn over the space "
+                                   "(resumable: the same command continues the file). fit: the thresholds on "
+                                   "l/r the teacher uses, fitted to sweeps. Ctrl-C stops; the same command "
                                    "resumes.")
     csub = p.add_subparsers(dest="choice_command", required=True, metavar="{sweep,fit}")
-    s = csub.add_parser("sweep", help="goto under both settings on designs drawn over the space (resumable)")
+    s = csub.add_parser("sweep", help="goto under a layout's settings on designs drawn over the space (resumable)")
     s.add_argument("--designs", type=positive_int, default=240, help="designs to sweep (default 240)")
     s.add_argument("--episodes", type=at_least_two, default=48, help="paired episodes per design (default 48)")
     s.add_argument("--seed", type=seed_type, default=3,
                    help="designs and episodes (default 3; keep it apart from evaluation seeds)")
     s.add_argument("--workers", type=positive_int, default=2, help="worker processes (default 2)")
     s.add_argument("--out", type=Path, required=True, help="JSON-lines file; an existing one is continued")
-    s.add_argument("--layout", choices=DUAL_LAYOUTS, default="dual",
-                   help="whose two goto settings: dual (goto's defaults and the thesis robots' turning) or "
-                        "dual-plan (the same two with plan's steadier estimates); default dual")
+    s.add_argument("--layout", choices=CHOICE_LAYOUTS, default="dual",
+                   help="whose goto settings: dual (goto's defaults and the thesis robots' turning), "
+                        "dual-plan (the same two with plan's steadier estimates) or tri-plan (dual-plan's and plan "
+                        "with the wider turning short legs prefer); default dual")
+    s.add_argument("--compare", type=int, nargs="+", default=None, metavar="K",
+                   help="which later settings to compare with the first, by number (2: the second; default all)")
+    s.add_argument("--reach-below", type=reach_bound, default=None, metavar="L/R",
+                   help="sweep only the drawn designs whose reach l/r is below this (default all); the others "
+                        "keep their numbers")
     s.add_argument("--task", default="nav-flat", help="nav-flat (default) or nav-terrain: the task the "
                                                      "settings are compared on")
     add_servo_arguments(s)
-    f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r) to a sweep")
-    f.add_argument("sweep", type=Path, help="the sweep's JSON-lines file")
+    f = csub.add_parser("fit", help="fit the teacher's choice (a threshold on l/r for each later setting) to sweeps")
+    f.add_argument("sweep", type=Path, nargs="+", help="the sweeps' JSON-lines files (records of another layout "
+                                                        "count where they compared the same two settings)")
+    f.add_argument("--layout", choices=CHOICE_LAYOUTS, default=None,
+                   help="the layout whose choice to fit (default: the one the sweeps were of)")
     f.add_argument("-o", "--output", type=Path, required=True, help="the choice file (JSON) imitate --choice takes")
     p.set_defaults(func=_choice)
+
+
+def reach_bound(text: str) -> float:
+    """A bound on the reach ``l / r``: a number above 1 (where the legs just tumble the body)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value) or value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} must be above 1 (l/r is 1 where the legs just tumble the body)")
+    return value
 
 
 def at_least_two(text: str) -> int:

@@ -47,7 +47,9 @@ class TrainConfig:
             observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
             ``"residual"`` (``memory`` plus goto's proposed action) or ``"dual"``
             (``residual`` plus a second goto's, :data:`tumblebot.sim.observation.DUAL_GOTO`)
-            or ``"dual-plan"`` (the same fields from two gotos with ``plan``'s estimates;
+            or ``"dual-plan"`` (the same fields from two gotos with ``plan``'s estimates)
+            or ``"tri-plan"`` (``dual-plan`` plus a third goto's,
+            :data:`tumblebot.sim.observation.PLAN_SHORT_GOTO`;
             :data:`tumblebot.sim.control.policy.LAYOUTS`).
         motor_model, stall_torque: the servo the policy is trained under (see
             :mod:`tumblebot.sim.world.env`); recorded in the model card, and a policy is not used

@@ -49,6 +49,11 @@ OBSERVATION_NOTES = {
                   "settings pinned in tumblebot.sim.observation.PLAN_GOTO and PLAN_DUAL_GOTO, the first one's "
                   "estimates in the memory fields): which of the two suits the body is learnt from the design; "
                   "OnnxPolicy builds it from the thesis observation and the design given at reset"),
+    "tri-plan": ("the dual-plan observation, then the action a third goto would take now (plan's estimates with "
+                 "the wider turning pinned in tumblebot.sim.observation.PLAN_SHORT_GOTO, which bodies with short "
+                 "legs prefer, also told the action actually taken every step): which of the three suits the body "
+                 "is learnt from the design; OnnxPolicy builds it from the thesis observation and the design "
+                 "given at reset"),
 }
 
 

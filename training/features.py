@@ -32,14 +32,15 @@ from tumblebot.sim.control.features import (
     PREVIOUS,
     RESIDUAL_FEATURE_NAMES,
     STEPS_LEFT,
+    TRI_FEATURE_NAMES,
 )
 from tumblebot.sim.control.policy import ObservationContext
 from tumblebot.sim.observation import COMMAND, LAYOUTS, POSITION, QUATERNION
 
 __all__ = ["CONTEXT_FEATURE_NAMES", "DESIGN_SCALE", "DUAL_FEATURE_NAMES", "FEATURE_NAMES", "MEMORY_FEATURE_NAMES",
-           "RESIDUAL_FEATURE_NAMES", "ContextFeatures", "ContextObservation", "DualFeatures", "MemoryFeatures",
-           "ObservationFeatures", "ResidualFeatures", "TumblerFeaturesExtractor", "feature_names", "features_for",
-           "rotation_matrix"]
+           "RESIDUAL_FEATURE_NAMES", "TRI_FEATURE_NAMES", "ContextFeatures", "ContextObservation", "DualFeatures",
+           "MemoryFeatures", "ObservationFeatures", "ResidualFeatures", "TriFeatures", "TumblerFeaturesExtractor",
+           "feature_names", "features_for", "rotation_matrix"]
 
 
 def rotation_matrix(q: torch.Tensor) -> torch.Tensor:
@@ -119,10 +120,11 @@ class DualFeatures(ResidualFeatures):
     proposals one-hot, then the design's reach, ``l / r − 1`` (leg length over the pivot
     radius; 0 where the legs just tumble the body), in which the better of the two gotos
     changes over (``tumblebot.training.choice``) and which a small tanh network would
-    otherwise have to compute from ``x, y, z, l`` itself."""
+    otherwise have to compute from ``x, y, z, l`` itself. With ``proposals=3`` the same
+    for a ``tri-plan`` input ``(B, 32)`` → ``(B, 71)`` (:class:`TriFeatures`)."""
 
-    def __init__(self) -> None:
-        super().__init__(proposals=2)
+    def __init__(self, proposals: int = 2) -> None:
+        super().__init__(proposals=proposals)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         design = obs[:, DESIGN]
@@ -130,10 +132,19 @@ class DualFeatures(ResidualFeatures):
         return torch.cat([super().forward(obs), design[:, 3:4] / radius - 1.0], dim=-1)
 
 
+class TriFeatures(DualFeatures):
+    """``tri-plan`` input ``(B, 32)`` → features ``(B, 71)`` (``TRI_FEATURE_NAMES``): the
+    three proposals one-hot, then the design's reach."""
+
+    def __init__(self) -> None:
+        super().__init__(proposals=3)
+
+
 _FEATURES: dict[str, tuple[type[nn.Module], tuple[str, ...]]] = {
     "thesis": (ObservationFeatures, FEATURES["thesis"]), "context": (ContextFeatures, FEATURES["context"]),
     "memory": (MemoryFeatures, FEATURES["memory"]), "residual": (ResidualFeatures, FEATURES["residual"]),
     "dual": (DualFeatures, FEATURES["dual"]), "dual-plan": (DualFeatures, FEATURES["dual-plan"]),
+    "tri-plan": (TriFeatures, FEATURES["tri-plan"]),
 }
 
 

@@ -32,7 +32,7 @@ import torch
 from tqdm import tqdm
 
 from tumblebot.sim.control.goto import GotoConfig, GotoController
-from tumblebot.sim.observation import DUAL_LAYOUTS, EPISODE_STEPS, fields_slice, teacher_name
+from tumblebot.sim.observation import CHOICE_LAYOUTS, EPISODE_STEPS, fields_slice, teacher_name
 from tumblebot.training.config import TrainConfig, TrainingError
 from tumblebot.training.ppo import (
     CSV_FIELDS,
@@ -86,13 +86,12 @@ def goto_teacher(episode_steps: int = EPISODE_STEPS) -> Teacher:
 
 def choice_teacher(choice: Any, episode_steps: int = EPISODE_STEPS) -> Teacher:
     """goto with the settings a :class:`~tumblebot.training.choice.GotoChoice` predicts
-    better for the body (of its layout's two: ``RESIDUAL_GOTO`` or ``DUAL_GOTO`` for
-    ``dual``, ``PLAN_GOTO`` or ``PLAN_DUAL_GOTO`` for ``dual-plan``)."""
-    first, second = choice.settings
+    best for the body (of its layout's: ``RESIDUAL_GOTO`` or ``DUAL_GOTO`` for
+    ``dual``, ``PLAN_GOTO`` or ``PLAN_DUAL_GOTO`` for ``dual-plan``, and ``PLAN_SHORT_GOTO``
+    too for ``tri-plan``)."""
 
     def settings(design: np.ndarray) -> GotoConfig:
-        chosen = second if choice.prefers_dual(design) else first
-        return GotoConfig(episode_steps=episode_steps, **chosen)
+        return GotoConfig(episode_steps=episode_steps, **choice.chosen(design))
 
     return settings
 
@@ -284,8 +283,8 @@ def _new_run(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     """Check the run can start, then write its config (rewritten with the steps taken at
     the end) and ``imitation.json``: the DAgger settings and the teacher."""
     if config.observation == "thesis":
-        raise TrainingError("imitation needs the context, memory, residual, dual or dual-plan observation (goto "
-                            "uses memory the thesis's 9 numbers lack)")
+        raise TrainingError("imitation needs a design-conditioned observation (context, memory, residual, dual, "
+                            "dual-plan or tri-plan; goto uses memory the thesis's 9 numbers lack)")
     from tumblebot.sim.control.goto import check_navigation_task
 
     check_navigation_task(config.task)
@@ -332,9 +331,9 @@ def imitate(config: TrainConfig, imitation: ImitationConfig, run_dir: Path,
     goto with the settings that file predicts better for each body (copied into the run)."""
     teacher, record = goto_teacher(), None
     name = teacher_name(config.observation)
-    dual = config.observation in DUAL_LAYOUTS
+    dual = config.observation in CHOICE_LAYOUTS
     if dual != (choice is not None):
-        raise TrainingError(f"a {' or '.join(DUAL_LAYOUTS)} student needs --choice (which goto settings suit which "
+        raise TrainingError(f"a {', '.join(CHOICE_LAYOUTS)} student needs --choice (which goto settings suit which "
                             "body), and only such a student takes it")
     if choice is not None:
         from tumblebot.sim.control.policy import sha256_of
@@ -441,7 +440,7 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
         raise TrainingError(f"--lookahead {horizon} must be 1–{EPISODE_STEPS} steps")
     if not (source / "dagger.npz").is_file():
         raise TrainingError(f"{source} has no dagger.npz: refine starts from a tumblebot imitate run")
-    if config.observation in DUAL_LAYOUTS:
+    if config.observation in CHOICE_LAYOUTS:
         raise TrainingError(f"{source} is a {config.observation} run: refine's search continues with goto's "
                             "defaults, not the setting its teacher chose for each body")
     config.init_from, config.init_from_steps = str(source / "latest.zip"), config.total_steps

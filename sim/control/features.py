@@ -19,7 +19,8 @@ fraction of the episode left, and the step's planar displacement scaled the same
 estimates (the step length scaled the same way, the two spin rates in rad). A
 ``residual`` input gets those, then goto's proposed action, each leg's command one-hot;
 a ``dual`` input then the second goto's action the same way and the design's reach
-``l / r − 1`` (leg length over the pivot radius; 0 where the legs just tumble the body).
+``l / r − 1`` (leg length over the pivot radius; 0 where the legs just tumble the body);
+a ``tri-plan`` input the three gotos' actions, then the reach.
 """
 
 from __future__ import annotations
@@ -49,10 +50,14 @@ RESIDUAL_FEATURE_NAMES: tuple[str, ...] = (*MEMORY_FEATURE_NAMES, *(f"goto_{leg}
 DUAL_FEATURE_NAMES: tuple[str, ...] = (*RESIDUAL_FEATURE_NAMES, *(f"goto2_{leg}_{command}" for leg in ("right", "left")
                                                                   for command in ("reverse", "stop", "forward")),
                                        "design_reach")
+TRI_FEATURE_NAMES: tuple[str, ...] = (*DUAL_FEATURE_NAMES[:-1], *(f"goto3_{leg}_{command}" for leg in ("right", "left")
+                                                                 for command in ("reverse", "stop", "forward")),
+                                      "design_reach")
 #: layout → the features its network computes, in order
 FEATURES: dict[str, tuple[str, ...]] = {"thesis": FEATURE_NAMES, "context": CONTEXT_FEATURE_NAMES,
                                         "memory": MEMORY_FEATURE_NAMES, "residual": RESIDUAL_FEATURE_NAMES,
-                                        "dual": DUAL_FEATURE_NAMES, "dual-plan": DUAL_FEATURE_NAMES}
+                                        "dual": DUAL_FEATURE_NAMES, "dual-plan": DUAL_FEATURE_NAMES,
+                                        "tri-plan": TRI_FEATURE_NAMES}
 DIRECTION_SOFTENING = 0.05  #: m; keeps the direction finite at the goal
 DESIGN_SCALE = 0.25  #: m; design lengths and step displacements are divided by it
 #: Where each part of a design-conditioned input lies, asked of the layouts by name
@@ -61,7 +66,7 @@ DESIGN = fields_slice("context", "design_x", "design_l")
 STEPS_LEFT = fields_slice("context", "steps_left", "steps_left")
 PREVIOUS = fields_slice("context", "prev_px", "prev_cmd_left")
 MEMORY = slice(len(LAYOUTS["context"]), len(LAYOUTS["memory"]))
-PROPOSALS = slice(len(LAYOUTS["memory"]), len(LAYOUTS["dual"]))  #: goto's, then the second goto's action
+PROPOSALS = slice(len(LAYOUTS["memory"]), None)  #: goto's action, then each later goto's
 
 
 def _thesis(o: list[float], out: list[float]) -> None:
@@ -98,7 +103,7 @@ def _row(layout: str, x: list[float]) -> list[float]:
     gotos = len(GOTO_SETTINGS.get(layout, ()))
     for leg in x[PROPOSALS][:2 * gotos]:
         out += (float(abs(leg - command) < 0.5) for command in range(3))
-    if gotos == 2:
+    if gotos >= 2:
         _, y, z, length = x[DESIGN]
         out.append(length / (0.5 * max(math.sqrt(y * y + z * z), 1e-3)) - 1.0)
     return out

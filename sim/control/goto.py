@@ -215,10 +215,13 @@ class GotoController:
 #: stall or a spin that shifted the body, misleads it less) and no spin in the last 3
 #: steps. ``plan`` is the stronger of the two on designs drawn afresh from the design
 #: space, most of all on mid-size bodies with medium to long legs; see the research notes
-#: on the policies.
+#: on the policies. ``plan-short`` is ``plan`` that turns less before it drives
+#: (``turn_tolerance`` 0.6 rad): better than ``plan`` on bodies whose legs barely tumble
+#: them (l / r below about 1.2), worse on the rest.
 NAVIGATORS: dict[str, GotoConfig] = {
     "goto": GotoConfig(),
     "plan": GotoConfig(memory=0.25, spin_steps_left=3),
+    "plan-short": GotoConfig(memory=0.25, spin_steps_left=3, turn_tolerance=0.6),
 }
 
 

@@ -112,15 +112,12 @@ class ObservationContext:
         self._design: np.ndarray | None = None
         self._previous: np.ndarray | None = None
         self._motion: Any = None
-        self._goto: Any = None
-        self._goto2: Any = None
+        self._gotos: list[GotoController] = []  # the first one's estimates are the memory fields
         if layout == "memory":
             self._motion = MotionMemory()
         elif layout in GOTO_SETTINGS:
-            first, *second = GOTO_SETTINGS[layout]
-            self._goto = GotoController(GotoConfig(episode_steps=episode_steps, **first))
-            if second:
-                self._goto2 = GotoController(GotoConfig(episode_steps=episode_steps, **second[0]))
+            self._gotos = [GotoController(GotoConfig(episode_steps=episode_steps, **settings))
+                           for settings in GOTO_SETTINGS[layout]]
         self.step = 0
 
     @property
@@ -139,9 +136,8 @@ class ObservationContext:
         self._previous = None
         if self._motion is not None:
             self._motion.reset()
-        for goto in (self._goto, self._goto2):
-            if goto is not None:
-                goto.reset()
+        for goto in self._gotos:
+            goto.reset()
         self.step = 0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -160,7 +156,7 @@ class ObservationContext:
         parts = [obs, self._design, time_left, previous]
         if self._motion is not None:
             parts.append(self._remember(obs, first=step == 0))
-        if self._goto is not None:
+        if self._gotos:
             parts.extend(self._propose(obs, step))
         return np.concatenate(parts).astype(np.float32)
 
@@ -178,16 +174,16 @@ class ObservationContext:
         return np.asarray(self._motion.as_array(), dtype=np.float32)
 
     def _propose(self, obs: np.ndarray, step: int) -> list[np.ndarray]:
-        """goto's motion estimates and its action now (``dual``: then the second goto's
-        action), each told what was actually done last step."""
+        """goto's motion estimates and its action now (``dual``, ``tri-plan``: then each
+        later goto's action), each told what was actually done last step."""
         actions = []
         taken = self._taken(obs) if step > 0 else None
         as_float = obs.astype(float)
-        for goto in (g for g in (self._goto, self._goto2) if g is not None):
+        for goto in self._gotos:
             if taken is not None:
                 goto.taken(taken)
             actions.append(np.asarray(goto.act(as_float, min(step, self.episode_steps - 1)), dtype=np.float32))
-        return [np.asarray(self._goto.motion.as_array(), dtype=np.float32), *actions]
+        return [np.asarray(self._gotos[0].motion.as_array(), dtype=np.float32), *actions]
 
 
 def _leg_action(command: float) -> int:

@@ -15,4 +15,5 @@ XI3_ROBOT_TEXT = ",".join(f"{v:g}" for v in XI3_ROBOT)
 MAX_STALL_TORQUE = 100.0
 #: The policy observation layouts by name (:data:`tumblebot.sim.control.policy.LAYOUTS` defines them;
 #: a test keeps the two in step).
-OBSERVATION_LAYOUTS: tuple[str, ...] = ("thesis", "context", "memory", "residual", "dual", "dual-plan")
+OBSERVATION_LAYOUTS: tuple[str, ...] = ("thesis", "context", "memory", "residual", "dual", "dual-plan",
+                                            "tri-plan")

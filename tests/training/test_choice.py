@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -67,7 +68,7 @@ def test_that_a_choice_file_round_trips_and_a_bad_one_is_one_error(tmp_path: Pat
     assert again.threshold == choice.threshold
     np.testing.assert_array_equal(again.designs, choice.designs)
     data = json.loads(path.read_text())
-    data["second"] = {**DUAL_GOTO, "spin_steps_left": 5}  # made for other settings than the pinned ones
+    data["settings"][1] = {**DUAL_GOTO, "spin_steps_left": 5}  # made for other settings than the pinned ones
     path.write_text(json.dumps(data))
     with pytest.raises(TrainingError, match="pinned goto settings"):
         GotoChoice.load(path)
@@ -127,9 +128,9 @@ def test_that_a_sweep_file_of_another_sweep_is_not_continued(tmp_path: Path,
 # --------------------------------------------------------------------------- dual-plan
 def test_that_the_dual_plan_layouts_gotos_are_plan_and_plan_with_the_thesis_robots_turning() -> None:
     from tumblebot.sim.control.goto import NAVIGATORS
-    from tumblebot.sim.observation import DUAL_LAYOUTS, GOTO_SETTINGS, LAYOUTS, PLAN_DUAL_GOTO, PLAN_GOTO
+    from tumblebot.sim.observation import CHOICE_LAYOUTS, GOTO_SETTINGS, LAYOUTS, PLAN_DUAL_GOTO, PLAN_GOTO
 
-    assert DUAL_LAYOUTS == ("dual", "dual-plan") and LAYOUTS["dual-plan"] == LAYOUTS["dual"]
+    assert CHOICE_LAYOUTS == ("dual", "dual-plan", "tri-plan") and LAYOUTS["dual-plan"] == LAYOUTS["dual"]
     assert GotoConfig(**PLAN_GOTO) == NAVIGATORS["plan"]  # pinned: plan's defaults may move, the layout may not
     assert GotoConfig(**PLAN_DUAL_GOTO) == GotoConfig(memory=0.25, turn_tolerance=0.3, spin_steps_left=4)
     assert GOTO_SETTINGS["dual-plan"] == (PLAN_GOTO, PLAN_DUAL_GOTO)
@@ -197,7 +198,8 @@ def test_that_a_choice_says_which_task_it_was_swept_on_and_never_mixes_two(tmp_p
     assert choice.task == "nav-terrain" and "nav-terrain designs" in choice.summary()
     losing = GotoChoice.fit([{**r, "difference": -0.03, "se": 0.01} for r in records])  # as on terrain
     assert not any(losing.prefers_dual(d.as_tuple()) for d in tumbling_designs(200, seed=0))
-    assert "0 of 200 swept nav-terrain designs, mean paired difference there none, below -0.0300" in losing.summary()
+    assert ("0 of 200 swept nav-terrain designs, mean paired difference there none, elsewhere -0.0300"
+            in losing.summary())
     path = tmp_path / "choice.json"
     path.write_text(choice.to_json())
     assert GotoChoice.load(path).task == "nav-terrain"
@@ -228,7 +230,7 @@ def test_that_a_plan_student_names_its_teacher_in_its_log_and_a_plan_sweep_its_f
     out = tmp_path / "sweep.jsonl"
     assert main(["choice", "sweep", "--designs", "1", "--episodes", "2", "--seed", "3", "--layout", "dual-plan",
                  "--workers", "1", "--out", str(out)]) == 0
-    assert re.search(r": plan -?\d\.\d{3}, second setting [+-]\d\.\d{3} ± ", capsys.readouterr().out)
+    assert re.search(r": plan -?\d\.\d{3}, setting 2 [+-]\d\.\d{3} ± ", capsys.readouterr().out)
     path = tmp_path / "choice.json"
     path.write_text(GotoChoice.fit([{**r, "layout": "dual-plan"} for r in _records()]).to_json())
     run = tmp_path / "run"
@@ -238,3 +240,103 @@ def test_that_a_plan_student_names_its_teacher_in_its_log_and_a_plan_sweep_its_f
     assert printed.startswith("imitating plan under the setting") and "agreement with plan" in printed
     rows = [line.split(",") for line in (run / "imitation.csv").read_text().splitlines()]
     assert [r[1] for r in rows[1:]] == ["plan", "student"]
+
+
+# --------------------------------------------------------------------------- tri-plan
+def test_that_a_choice_file_of_one_threshold_written_before_tri_plan_still_loads(tmp_path: Path) -> None:
+    bundled = Path(__file__).parents[2] / "training" / "checkpoints" / "plan-choice" / "choice.json"
+    assert json.loads(bundled.read_text())["format"] == "tumblebot-goto-choice/1"
+    choice = GotoChoice.load(bundled)
+    assert choice.layout == "dual-plan" and choice.threshold == pytest.approx(1.361, abs=1e-3)
+    data = json.loads(bundled.read_text())
+    data["second"] = {**data["second"], "spin_steps_left": 5}
+    path = tmp_path / "choice.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(TrainingError, match="pinned goto settings"):
+        GotoChoice.load(path)
+
+
+def _tri_records() -> list[dict[str, Any]]:
+    """A made-up tri-plan sweep: setting 2 gains 0.03 above l/r 1.4, setting 3 gains 0.05
+    below 1.15; each loses as much elsewhere."""
+    records: list[dict[str, Any]] = []
+    for d in tumbling_designs(300, seed=2):
+        r = reach(d.as_tuple())[0]
+        records.append({"design": list(d.as_tuple()), "layout": "tri-plan", "compared": [2, 3], "goto": 0.5,
+                        "means": [0.0, 0.0], "differences": [0.03 if r > 1.4 else -0.03, 0.05 if r < 1.15 else -0.05],
+                        "errors": [0.005, 0.005]})
+    return records
+
+
+def test_that_a_tri_plan_choice_takes_the_third_setting_on_short_legs_and_the_second_on_long_ones(
+        tmp_path: Path) -> None:
+    from tumblebot.sim.observation import PLAN_DUAL_GOTO, PLAN_GOTO, PLAN_SHORT_GOTO
+
+    choice = GotoChoice.fit(_tri_records())
+    assert choice.layout == "tri-plan" and choice.settings == (PLAN_GOTO, PLAN_DUAL_GOTO, PLAN_SHORT_GOTO)
+    short = next(rule for rule in choice.rules if rule.setting == 3)
+    assert short.side == "below" and 1.08 < short.threshold < 1.2
+    assert 1.35 < choice.threshold < 1.5
+    teacher = choice_teacher(choice)
+    for d in tumbling_designs(200, seed=8):
+        r = reach(d.as_tuple())[0]
+        if abs(r - 1.15) > 0.05 and abs(r - 1.4) > 0.05:
+            expected = PLAN_SHORT_GOTO if r < 1.15 else PLAN_DUAL_GOTO if r > 1.4 else PLAN_GOTO
+            assert teacher(np.array(d.as_tuple())) == GotoConfig(**expected)
+    path = tmp_path / "choice.json"
+    path.write_text(choice.to_json())
+    again = GotoChoice.load(path)
+    assert [(r.setting, r.side, r.threshold) for r in again.rules] == [(r.setting, r.side, r.threshold)
+                                                                      for r in choice.rules]
+    assert "setting 3 where l/r < " in choice.summary()
+
+
+def test_that_a_tri_plan_fit_reads_the_second_setting_from_a_dual_plan_sweep_and_the_third_from_its_own() -> None:
+    tri = _tri_records()
+    second_only = [{"design": r["design"], "layout": "dual-plan", "difference": r["differences"][0], "se": 0.005}
+                   for r in tri]
+    third_only = [{**r, "compared": [3], "means": [0.0], "differences": [r["differences"][1]], "errors": [0.005]}
+                  for r in tri[:150]]
+    both = GotoChoice.fit(tri)
+    merged = GotoChoice.fit([*second_only, *third_only], "tri-plan")
+    assert merged.threshold == both.threshold
+    assert len(next(r for r in merged.rules if r.setting == 3).designs) == 150
+    with pytest.raises(TrainingError, match="mixes the goto settings of dual-plan, tri-plan"):
+        GotoChoice.fit([*second_only, *third_only])
+    with pytest.raises(TrainingError, match="other goto settings than the tri-plan"):
+        GotoChoice.fit([*_records(), *third_only], "tri-plan")  # dual's first setting is goto, not plan
+    with pytest.raises(TrainingError, match="at least 5 swept designs for setting 3"):
+        GotoChoice.fit(second_only, "tri-plan")
+
+
+def test_that_a_sweep_compares_only_the_settings_asked_for_and_refuses_one_the_layout_lacks(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from tumblebot.training.choice import check_compared
+
+    assert check_compared("tri-plan", None) == (2, 3) and check_compared("tri-plan", [3]) == (3,)
+    with pytest.raises(TrainingError, match="later goto settings are 2, not 3"):
+        check_compared("dual-plan", [3])
+    out = tmp_path / "sweep.jsonl"
+    assert main(["choice", "sweep", "--layout", "dual", "--compare", "3", "--out", str(out)]) == 2
+    assert "not 3" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(SystemExit):
+        main(["choice", "sweep", "--layout", "tri-plan", "--reach-below", "0.9", "--out", str(out)])
+    assert "must be above 1" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.slow
+def test_that_a_sweep_below_a_reach_keeps_the_drawn_designs_numbers_and_pairs_the_third_setting(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sweep.jsonl"
+    command = ["choice", "sweep", "--layout", "tri-plan", "--compare", "3", "--reach-below", "1.5", "--designs", "12",
+               "--episodes", "2", "--workers", "1", "--out", str(out)]
+    assert main(command) == 0
+    records = read_sweep(out)
+    drawn = tumbling_designs(12, seed=3)
+    assert records and [r["index"] for r in records] == [k for k, d in enumerate(drawn) if reach(d.as_tuple())[0] < 1.5]
+    for r in records:
+        assert r["compared"] == [3] and "difference" not in r
+        assert r["differences"][0] == pytest.approx(r["means"][0] - r["goto"])
+    before = out.read_text()
+    assert main(command) == 0 and out.read_text() == before  # done: continuing adds nothing
+    capsys.readouterr()

@@ -19,6 +19,7 @@ from tumblebot.cli import main
 from tumblebot.sim.control.goto import FORWARD, NAVIGATION_TASKS, SPIN_POSITIVE, GotoController
 from tumblebot.sim.control.policy import LAYOUTS, ObservationContext, OnnxPolicy, PolicyError, bundled_policy
 from tumblebot.sim.evaluation.evaluate import Driver, evaluate
+from tumblebot.sim.observation import CHOICE_LAYOUTS
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design
 from tumblebot.sim.world.env import TumblerEnv
 from tumblebot.sim.world.randomization import Randomization
@@ -200,18 +201,23 @@ def _choice_file(folder: Path, layout: str = "dual") -> Path:
     from tumblebot.training.choice import GotoChoice
 
     designs = tumbling_designs(40, seed=1)
-    records = [{"design": list(d.as_tuple()), "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03,
-                "layout": layout} for d in designs]
+    records: list[dict[str, object]] = [{"design": list(d.as_tuple()), "layout": layout,
+                                         "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03}
+                                        for d in designs]
+    if layout == "tri-plan":  # and the third setting ahead where they are short
+        records = [{**r, "compared": [2, 3], "means": [0.0, 0.0], "errors": [0.01, 0.01],
+                    "differences": [r["difference"], 0.03 if d.l / d.pivot_radius < 1.15 else -0.03]}
+                   for r, d in zip(records, designs, strict=True)]
     path = folder / "choice.json"
     path.write_text(GotoChoice.fit(records).to_json())
     return path
 
 
-@pytest.mark.parametrize("layout", ["memory", "residual", "dual", "dual-plan"])
+@pytest.mark.parametrize("layout", ["memory", "residual", "dual", "dual-plan", "tri-plan"])
 def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_network(layout: str,
                                                                                    tmp_path: Path) -> None:
     run, out = tmp_path / layout, tmp_path / "nav-flat.onnx"
-    choice = ["--choice", str(_choice_file(tmp_path, layout))] if layout in ("dual", "dual-plan") else []
+    choice = ["--choice", str(_choice_file(tmp_path, layout))] if layout in CHOICE_LAYOUTS else []
     assert main(["imitate", "--run-dir", str(run), "--iterations", "1", "--episodes", "2", "--updates", "10",
                  "--net-arch", "16,16", "--envs", "1", "--observation", layout, *choice]) == 0
     assert TrainConfig.load(run / "config.json").observation == layout
@@ -225,7 +231,7 @@ def test_that_a_memory_residual_or_dual_policy_exports_runs_and_matches_its_netw
     policy = OnnxPolicy(out, task="nav-flat")
     assert policy.layout == layout  # dual-plan has dual's fields: the card's name decides which gotos run
     x = np.random.default_rng(0).normal(size=(10_000, len(LAYOUTS[layout]))).astype(np.float32)
-    if layout in ("residual", "dual", "dual-plan"):  # goto's proposals are commands, 0, 1 or 2 per leg
+    if layout in ("residual", *CHOICE_LAYOUTS):  # goto's proposals are commands, 0, 1 or 2 per leg
         proposals = len(LAYOUTS[layout]) - len(LAYOUTS["memory"])
         x[:, -proposals:] = np.random.default_rng(1).integers(0, 3, size=(10_000, proposals))
     np.testing.assert_array_equal(policy.act_batch(x), model.predict(x, deterministic=True)[0])
@@ -531,7 +537,8 @@ def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger:
     assert main(["export", str(tiny_dagger), "-o", str(first), "--eval-episodes", "2"]) == 0
     card = json.loads(first.with_suffix(".json").read_text())
     hand = card["evaluation"]["against_hand_written"]
-    assert len(hand["fixed"]["rows"]) == 12 and set(hand["fixed"]["rows"][0]["hand_written"]) == {"goto", "plan"}
+    assert len(hand["fixed"]["rows"]) == 12
+    assert set(hand["fixed"]["rows"][0]["hand_written"]) == {"goto", "plan", "plan-short"}
     assert len(hand["fresh"]["rows"]) == 24 and hand["fresh"]["design_seed"] == 104729  # drawn afresh
     assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2",
                  "--baselines-from", str(first.with_suffix(".json"))]) == 0
@@ -583,6 +590,36 @@ def test_that_the_dual_plan_input_holds_plans_estimates_and_both_plan_gotos_acti
             obs, *_ = env.step(np.array(action))
     finally:
         env.close()
+
+
+def test_that_the_tri_plan_input_holds_the_dual_plan_input_then_the_short_legged_settings_action() -> None:
+    from tumblebot.sim.control.goto import GotoConfig
+    from tumblebot.sim.observation import PLAN_SHORT_GOTO
+
+    short_legs = Design(0.259, 0.227, 0.099, 0.132)  # l/r 1.07: the third setting gains most on such bodies
+    env = TumblerEnv(task="nav-flat", design=short_legs)
+    tri, dual = ObservationContext("tri-plan"), ObservationContext("dual-plan")
+    third = GotoController(GotoConfig(**PLAN_SHORT_GOTO))
+    differ = 0
+    try:
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            for context in (tri, dual):
+                context.reset(short_legs.as_tuple())
+            third.reset()
+            for step in range(20):
+                x = tri(obs)
+                assert x.shape == (len(LAYOUTS["tri-plan"]),) == (len(LAYOUTS["dual-plan"]) + 2,)
+                np.testing.assert_allclose(x[:len(LAYOUTS["dual-plan"])], dual(obs), rtol=1e-6, atol=1e-7)
+                action = third.act(obs, step)
+                assert (int(x[-2]), int(x[-1])) == action
+                first = (int(x[-6]), int(x[-5]))  # plan's: the teacher drives, the third is told
+                differ += first != action
+                third.taken(first)
+                obs, *_ = env.step(np.array(first))
+    finally:
+        env.close()
+    assert differ > 0, "plan and the third goto never disagreed: the third is not its own setting"
 
 
 @pytest.mark.parametrize("named", ["dual", ["dual-plan"], "thesis", "warp"])
