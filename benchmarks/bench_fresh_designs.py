@@ -2,18 +2,20 @@
 afresh: an evaluation that cannot be tuned to.
 
 Run: ``.venv/bin/python benchmarks/bench_fresh_designs.py [--task nav-flat] [--designs 24]
-[--design-seed 7919] [--episodes 48] [--seed 1] [--workers 2] [--hand-written goto,…] [--confirm 240]
-[--json FILE]``
+[--design-seed 7919] [--reach-below L/R] [--episodes 48] [--seed 1] [--workers 2] [--hand-written goto,…]
+[--confirm 240] [--json FILE]``
 
 ``--designs`` designs are drawn uniformly from the bounds with ``--design-seed`` (any seed
 works: the model cards' grid and training never see it), keeping those whose legs can lift
-the body. On each, the policy, the hand-written navigation controllers (``goto`` and
-``plan``) and every fixed scripted gait drive the same ``--episodes`` episodes (common
-random numbers, ``--seed``). Per design it prints each controller's mean final R, the
-policy's paired difference to the strongest hand-written controller on that design, and
-the paired t-test's p-value; then the bar the navigation cards hold the policy to: no
-more than 0.02 behind the strongest hand-written controller on every design where that
-controller reaches 0.5, and ahead of it on average.
+the body (with ``--reach-below``, only those whose legs reach less than that many pivot
+radii: one class of bodies, the same draws filtered). On each, the policy, the hand-
+written navigation controllers (``goto``, ``plan`` and ``plan-short``) and every fixed
+scripted gait drive the same ``--episodes`` episodes (common random numbers, ``--seed``).
+Per design it prints each controller's mean final R, the policy's paired difference to the
+strongest hand-written controller on that design, and the paired t-test's p-value; then
+the bar the navigation cards hold the policy to: no more than 0.02 behind the strongest
+hand-written controller on every design where that controller reaches 0.5, and ahead of it
+on average.
 
 With 48 episodes a design's paired difference has a standard error of about 0.02, so a
 policy that equals its teacher in expectation falls 0.02 behind on some of 24 designs by
@@ -69,11 +71,14 @@ def _confirm(runners: dict[str, EpisodeRunner], row: dict[str, Any], args: argpa
             "best_hand_written": best, "policy_minus_best": diff, "p": p, "behind": behind}
 
 
-def main() -> int:
+def _arguments() -> tuple[argparse.Namespace, list[str]]:
+    """The command line, checked: the arguments and the hand-written controllers named."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
     ap.add_argument("--designs", type=int, default=24, help="fresh designs (24)")
     ap.add_argument("--design-seed", type=int, default=7919, help="seed the designs are drawn with (7919)")
+    ap.add_argument("--reach-below", type=float, default=None, metavar="L/R",
+                    help="keep only designs whose legs reach less than this many pivot radii (default all)")
     ap.add_argument("--episodes", type=int, default=48, help="episodes per design and controller (48)")
     ap.add_argument("--seed", type=int, default=1, help="episode seed (1)")
     ap.add_argument("--workers", type=int, default=2)
@@ -86,20 +91,28 @@ def main() -> int:
     args = ap.parse_args()
     if args.designs < 1 or args.episodes < 2 or args.workers < 1 or args.confirm not in (0, *range(2, 100_001)):
         ap.error("--designs and --workers must be at least 1, --episodes at least 2, --confirm 0 or 2–100000")
+    if args.reach_below is not None and not args.reach_below > 1.0:
+        ap.error("--reach-below must exceed 1 (shorter legs cannot tumble the body)")
     hand = [n for n in args.hand_written.split(",") if n]
     if not hand or any(n not in HAND_WRITTEN for n in hand):
         ap.error(f"--hand-written takes a comma-separated list of {', '.join(HAND_WRITTEN)}")
+    return args, hand
+
+
+def main() -> int:
+    args, hand = _arguments()
     policy = args.policy or bundled_policies([args.task])[args.task]
     print(f"bench_fresh_designs {time.strftime('%Y-%m-%d')} on {platform.node()} ({os.cpu_count()} cores, "
           f"{platform.machine()}): {args.task}, policy {policy.name}, {args.designs} designs drawn with seed "
-          f"{args.design_seed}, {args.episodes} paired episodes each (seed {args.seed})", flush=True)
+          f"{args.design_seed}" + ("" if args.reach_below is None else f" with l/r below {args.reach_below:g}")
+          + f", {args.episodes} paired episodes each (seed {args.seed})", flush=True)
     drivers = {"policy": Driver("onnx", str(policy)), **{name: Driver.of_gait(name) for name in hand}}
     rows: list[dict[str, Any]] = []
     print(f"{'design (x, y, z, l)':<30} {'l/r':>4} " + " ".join(f"{n:>8}" for n in drivers)
           + f" {'best hand':>10} {'policy-best':>11} {'p':>7}")
     runners = {name: EpisodeRunner({args.task: d}, workers=args.workers) for name, d in drivers.items()}
     try:
-        for design in tumbling_designs(args.designs, args.design_seed):
+        for design in tumbling_designs(args.designs, args.design_seed, args.reach_below):
             R = {name: runner.run(design, [args.task], 0, args.episodes, args.seed)[args.task]
                  for name, runner in runners.items()}
             best = max(hand, key=lambda n: float(R[n].mean()))
@@ -135,6 +148,7 @@ def main() -> int:
         print(f"re-measured on {args.confirm} fresh episodes: {len(still)} of the {len(confirmed)} still behind")
     if args.json is not None:
         args.json.write_text(json.dumps({"task": args.task, "policy": policy.name, "design_seed": args.design_seed,
+                                         "reach_below": args.reach_below,
                                          "seed": args.seed, "episodes": args.episodes, "rows": rows}, indent=1))
     return 0 if verdict == "met" else 1
 

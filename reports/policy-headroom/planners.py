@@ -148,19 +148,6 @@ def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[fl
             for name in ["plan", *names]]
 
 
-def _designs(count: int, seed: int, reach_below: float | None) -> list[Design]:
-    """The first ``count`` designs that can tumble drawn with ``seed``, those whose l/r is
-    below ``reach_below`` only when it is given (the same draws, filtered)."""
-    if reach_below is None:
-        return tumbling_designs(count, seed)
-    out: list[Design] = []
-    drawn = 0
-    while len(out) < count:
-        drawn += 4 * count
-        out = [d for d in tumbling_designs(drawn, seed) if d.l / d.pivot_radius < reach_below][:count]
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
@@ -196,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.ExitStack() as stack:  # --workers 1 runs in this process
         pool = (stack.enter_context(multiprocessing.get_context("forkserver").Pool(args.workers))
                 if args.workers > 1 else None)
-        for design in _designs(args.designs, args.design_seed, args.reach_below):
+        for design in tumbling_designs(args.designs, args.design_seed, args.reach_below):
             jobs = [(args.task, design.as_tuple(), args.seed, i, names) for i in range(args.episodes)]
             R = np.array(pool.map(_episode, jobs, chunksize=4) if pool is not None else [_episode(j) for j in jobs])
             diff = R[:, 1:] - R[:, :1]

@@ -127,14 +127,18 @@ class Design:
         return f"Design(x={self.x:.3f}, y={self.y:.3f}, z={self.z:.3f}, l={self.l:.3f})"
 
 
-def tumbling_designs(count: int, seed: int) -> list[Design]:
+def tumbling_designs(count: int, seed: int, reach_below: float | None = None) -> list[Design]:
     """``count`` designs drawn uniformly from the bounds with ``seed``, keeping those whose
-    legs can lift the body (:attr:`Design.can_tumble`), in the order drawn."""
+    legs can lift the body (:attr:`Design.can_tumble`), in the order drawn; with
+    ``reach_below``, only those whose legs reach less than that many pivot radii
+    (``l / r``; the same draws, filtered)."""
+    if reach_below is not None and reach_below <= 1.0:
+        raise ValueError(f"reach_below={reach_below} must exceed 1 (shorter legs cannot tumble the body)")
     rng = np.random.default_rng(seed)
     out: list[Design] = []
     while len(out) < count:
         design = Design.sample(rng)
-        if design.can_tumble:
+        if design.can_tumble and (reach_below is None or design.l / design.pivot_radius < reach_below):
             out.append(design)
     return out
 
