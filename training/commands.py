@@ -22,6 +22,7 @@ from tumblebot.cliargs import (
     check_writable_folder,
     count,
     non_negative_int,
+    positive_float,
     positive_int,
     seed_type,
     stall_torque,
@@ -138,7 +139,8 @@ def _imitate(args: argparse.Namespace) -> int:
     from tumblebot.training.config import TrainConfig
     from tumblebot.training.imitation import ImitationConfig, imitate
 
-    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
+    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates,
+                               learning_rate=args.learning_rate, learning_rate_end=args.learning_rate_end)
     config = TrainConfig(task=task, observation=args.observation, tumbling_designs_only=True, net_arch=args.net_arch,
                          n_envs=args.envs if args.envs is not None else 0, seed=args.seed,
                          **profile_from_args(args).as_fields())
@@ -162,7 +164,8 @@ def _refine(args: argparse.Namespace) -> int:
     from tumblebot.training.imitation import ImitationConfig, refine
     from tumblebot.training.ppo import TrainingInterrupted
 
-    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates)
+    settings = ImitationConfig(iterations=args.iterations, episodes=args.episodes, updates=args.updates,
+                               learning_rate=args.learning_rate, learning_rate_end=args.learning_rate_end)
     workers = args.envs if args.envs is not None else (os.cpu_count() or 1)
     future = f"the mean of {args.draws} futures drawn anew" if args.draws else "the episode's own future"
     print(f"refining {args.refine} toward goto with a {args.lookahead}-step lookahead over {future} "
@@ -324,6 +327,11 @@ def _add_imitate_command(sub: Subcommands) -> None:
     p.add_argument("--episodes", type=positive_int, default=500, help="episodes per iteration (default 500)")
     p.add_argument("--updates", type=positive_int, default=4000,
                    help="gradient steps after each iteration (default 4000)")
+    p.add_argument("--learning-rate", type=positive_float, default=1e-3, metavar="LR",
+                   help="Adam step size of the fits (default 1e-3)")
+    p.add_argument("--learning-rate-end", type=positive_float, default=None, metavar="LR",
+                   help="let each fit's step size fall linearly to this by its last update (default: constant); "
+                        "1e-4 fits the rare states where a body's goto settings disagree")
     p.add_argument("--net-arch", type=_net_arch, default=[256, 256], metavar="N,N",
                    help="hidden layer sizes (default 256,256)")
     p.add_argument("--observation", choices=OBSERVATION_LAYOUTS[1:], default="context",

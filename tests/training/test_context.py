@@ -628,7 +628,7 @@ def test_that_a_card_naming_a_layout_gets_that_layout_or_one_clear_error(named: 
 
     from tumblebot.sim.control.policy import card_path
 
-    source = bundled_policy("nav-flat")  # a dual card
+    source = Path(__file__).parents[2] / "training" / "checkpoints" / "plan-nav-flat" / "nav-flat.onnx"  # dual-plan
     policy = tmp_path / "p.onnx"
     shutil.copy(source, policy)
     card = json.loads(card_path(source).read_text())
@@ -660,3 +660,39 @@ def test_that_a_dagger_run_is_drawn_one_point_per_iteration(tiny_dagger: Path, t
     plt.close(fig)
     assert main(["curve", str(tiny_dagger), "-o", str(tmp_path / "curve.png")]) == 0
     assert (tmp_path / "curve.png").stat().st_size > 1000
+
+
+def test_that_a_falling_learning_rate_ends_each_fit_at_its_last_step_size(tiny_dagger: Path) -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    from tumblebot.training.imitation import ImitationConfig, Labelled, fit
+    from tumblebot.training.ppo import StopRequest
+
+    model = PPO.load(tiny_dagger / "latest.zip", device="cpu")
+    saved = np.load(tiny_dagger / "dagger.npz")
+    data = Labelled(saved["inputs"], saved["labels"], saved["returns"], saved["goto_labels"], saved["values"])
+    optimiser = torch.optim.Adam(model.policy.parameters(), lr=1e-3)
+    seen: list[float] = []
+    step = optimiser.step
+
+    def record(*args: Any, **kwargs: Any) -> Any:
+        seen.append(optimiser.param_groups[0]["lr"])
+        return step(*args, **kwargs)
+
+    optimiser.step = record  # type: ignore[method-assign]
+    fit(model, optimiser, data, ImitationConfig(updates=5, batch_size=8, learning_rate_end=1e-4), 0, StopRequest())
+    assert seen == pytest.approx([1e-3, 7.75e-4, 5.5e-4, 3.25e-4, 1e-4])
+    seen.clear()
+    fit(model, optimiser, data, ImitationConfig(updates=3, batch_size=8), 0, StopRequest())
+    assert seen == pytest.approx([1e-4] * 3)  # without an end, the optimiser's own step size, as before
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--learning-rate-end", "0.01"), ("--learning-rate-end", "-1e-4"),
+                                             ("--learning-rate", "nan")])
+def test_that_imitate_refuses_a_bad_learning_rate_before_writing(flag: str, value: str, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / "run"
+    assert main(["imitate", "--run-dir", str(run), "--iterations", "1", f"{flag}={value}"]) == 2
+    assert "learning_rate" in capsys.readouterr().err
+    assert not run.exists()
