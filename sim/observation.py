@@ -81,8 +81,6 @@ GOTO_SETTINGS: dict[str, tuple[dict[str, Any], ...]] = {"residual": (RESIDUAL_GO
 #: the layouts shown several gotos' actions, whose teacher chooses among them per body
 #: (:mod:`tumblebot.training.choice`)
 CHOICE_LAYOUTS: tuple[str, ...] = tuple(name for name, gotos in GOTO_SETTINGS.items() if len(gotos) >= 2)
-#: the layouts shown exactly two gotos' actions
-DUAL_LAYOUTS: tuple[str, ...] = tuple(name for name, gotos in GOTO_SETTINGS.items() if len(gotos) == 2)
 
 
 def teacher_name(layout: str) -> str:
