@@ -160,37 +160,53 @@ def test_that_the_residual_layouts_goto_is_pinned_to_the_settings_it_was_trained
     assert GotoConfig(**DUAL_GOTO) == GotoConfig(turn_tolerance=0.3, spin_steps_left=4)
 
 
+def _assert_input_ends_with_a_gotos_action(layout: str, shorter: str, settings: dict[str, Any], design: Design,
+                                           seeds: int, drive: Any) -> int:
+    """Drive ``seeds`` episodes of ``design``; at every step the ``layout`` input must be the
+    ``shorter`` layout's input, then the action of a goto with ``settings`` told what was
+    actually done (``drive(x, its_action)`` picks that). How often its action differed from
+    the first goto's."""
+    from tumblebot.sim.control.goto import GotoConfig
+    from tumblebot.sim.observation import field_index
+
+    env = TumblerEnv(task="nav-flat", design=design)
+    longer, prefix = ObservationContext(layout), ObservationContext(shorter)
+    goto = GotoController(GotoConfig(**settings))
+    first = field_index(layout, "goto_right")
+    differ = 0
+    try:
+        for seed in range(seeds):
+            obs, _ = env.reset(seed=seed)
+            for context in (longer, prefix):
+                context.reset(design.as_tuple())
+            goto.reset()
+            for step in range(20):
+                x = longer(obs)
+                assert x.shape == (len(LAYOUTS[layout]),) == (len(LAYOUTS[shorter]) + 2,)
+                np.testing.assert_allclose(x[:len(LAYOUTS[shorter])], prefix(obs), rtol=1e-6, atol=1e-7)
+                action = goto.act(obs, step)
+                assert (int(x[-2]), int(x[-1])) == action
+                differ += (int(x[first]), int(x[first + 1])) != action
+                taken = drive(x, action)
+                goto.taken(taken)
+                obs, *_ = env.step(np.array(taken))
+    finally:
+        env.close()
+    return differ
+
+
 @pytest.mark.parametrize("driver", ["second goto", "random"])
 def test_that_the_dual_input_holds_the_actions_of_both_gotos_at_every_step(driver: str) -> None:
     """The dual layout is the residual layout, then the second goto's choice for this step;
     both are told what was actually done before (whoever drives)."""
-    from tumblebot.sim.control.goto import GotoConfig
     from tumblebot.sim.control.policy import DUAL_GOTO
 
-    env = TumblerEnv(task="nav-flat", design=XI3)
-    dual, residual = ObservationContext("dual"), ObservationContext("residual")
-    second = GotoController(GotoConfig(**DUAL_GOTO))
     rng = np.random.default_rng(7)
-    differ = 0
-    try:
-        for seed in range(4):
-            obs, _ = env.reset(seed=seed)
-            for context in (dual, residual):
-                context.reset(XI3.as_tuple())
-            second.reset()
-            for step in range(20):
-                x = dual(obs)
-                action = second.act(obs, step)
-                assert x.shape == (len(LAYOUTS["dual"]),)
-                np.testing.assert_allclose(x[:len(LAYOUTS["residual"])], residual(obs), rtol=1e-6, atol=1e-7)
-                assert (int(x[-2]), int(x[-1])) == action
-                differ += (int(x[-4]), int(x[-3])) != action
-                if driver == "random":
-                    action = (int(rng.integers(3)), int(rng.integers(3)))
-                    second.taken(action)
-                obs, *_ = env.step(np.array(action))
-    finally:
-        env.close()
+
+    def drive(x: np.ndarray, action: tuple[int, int]) -> tuple[int, int]:
+        return action if driver == "second goto" else (int(rng.integers(3)), int(rng.integers(3)))
+
+    differ = _assert_input_ends_with_a_gotos_action("dual", "residual", DUAL_GOTO, XI3, 4, drive)
     assert differ > 0, "the two gotos never disagreed: the second is not the second setting"
 
 
@@ -593,32 +609,15 @@ def test_that_the_dual_plan_input_holds_plans_estimates_and_both_plan_gotos_acti
 
 
 def test_that_the_tri_plan_input_holds_the_dual_plan_input_then_the_short_legged_settings_action() -> None:
-    from tumblebot.sim.control.goto import GotoConfig
-    from tumblebot.sim.observation import PLAN_SHORT_GOTO
+    from tumblebot.sim.observation import PLAN_SHORT_GOTO, field_index
 
     short_legs = Design(0.259, 0.227, 0.099, 0.132)  # l/r 1.07: the third setting gains most on such bodies
-    env = TumblerEnv(task="nav-flat", design=short_legs)
-    tri, dual = ObservationContext("tri-plan"), ObservationContext("dual-plan")
-    third = GotoController(GotoConfig(**PLAN_SHORT_GOTO))
-    differ = 0
-    try:
-        for seed in range(3):
-            obs, _ = env.reset(seed=seed)
-            for context in (tri, dual):
-                context.reset(short_legs.as_tuple())
-            third.reset()
-            for step in range(20):
-                x = tri(obs)
-                assert x.shape == (len(LAYOUTS["tri-plan"]),) == (len(LAYOUTS["dual-plan"]) + 2,)
-                np.testing.assert_allclose(x[:len(LAYOUTS["dual-plan"])], dual(obs), rtol=1e-6, atol=1e-7)
-                action = third.act(obs, step)
-                assert (int(x[-2]), int(x[-1])) == action
-                first = (int(x[-6]), int(x[-5]))  # plan's: the teacher drives, the third is told
-                differ += first != action
-                third.taken(first)
-                obs, *_ = env.step(np.array(first))
-    finally:
-        env.close()
+    plan = field_index("tri-plan", "goto_right")
+
+    def drive(x: np.ndarray, action: tuple[int, int]) -> tuple[int, int]:
+        return int(x[plan]), int(x[plan + 1])  # plan's: the teacher drives, the third is told
+
+    differ = _assert_input_ends_with_a_gotos_action("tri-plan", "dual-plan", PLAN_SHORT_GOTO, short_legs, 3, drive)
     assert differ > 0, "plan and the third goto never disagreed: the third is not its own setting"
 
 
