@@ -119,11 +119,11 @@ def main() -> int:
             diff = float(R["policy"].mean() - R[best].mean())
             p = paired_p(R["policy"], R[best])
             fails = bool(R[best].mean() >= REACHES and diff < -BEHIND)
-            rows.append({"design": design.as_dict(), "l_over_r": design.l / design.pivot_radius,
+            rows.append({"design": design.as_dict(), "l_over_r": design.reach,
                          "mean_R": {n: float(v.mean()) for n, v in R.items()}, "best_hand_written": best,
                          "policy_minus_best": diff, "p": p, "fails_bar": fails})
             text = "(" + ", ".join(f"{v:.3f}" for v in design.as_tuple()) + ")"
-            print(f"{text:<30} {design.l / design.pivot_radius:4.2f} "
+            print(f"{text:<30} {design.reach:4.2f} "
                   + " ".join(f"{float(R[n].mean()):8.3f}" for n in drivers)
                   + f" {best:>10} {diff:+11.3f} {p if p is not None else float('nan'):7.2g}"
                   + ("  FAILS" if fails else ""), flush=True)

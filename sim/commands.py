@@ -17,7 +17,7 @@ from tumblebot.cliargs import (
     add_mismatch_argument,
     add_servo_arguments,
     check_writable,
-    positive_float,
+    number,
     seed_type,
 )
 from tumblebot.defaults import XI3_ROBOT_TEXT
@@ -180,7 +180,7 @@ def _add_power_command(sub: Subcommands) -> None:
                                    "restored). Lengths in metres.")
     for name, desc in (("x", "body width along the leg axis"), ("y", "side-profile dimension"),
                        ("z", "side-profile dimension"), ("l", "leg length")):
-        p.add_argument(name, type=positive_float, help=f"{desc}, m")
+        p.add_argument(name, type=number, help=f"{desc}, m")
     p.add_argument("--json", action="store_true", help="print one JSON object (keys include mass, e)")
     p.add_argument("--allow-out-of-bounds", action="store_true", help="accept designs outside the bounds")
     p.set_defaults(func=_power)

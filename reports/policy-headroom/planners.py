@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
             se = diff.std(axis=0, ddof=1) / math.sqrt(args.episodes)
             rows.append(R.mean(axis=0))
             text = "(" + ", ".join(f"{v:.3f}" for v in design.as_tuple()) + ")"
-            print(f"{text:30s} {design.l / design.pivot_radius:4.2f} {R[:, 0].mean():6.3f}  "
+            print(f"{text:30s} {design.reach:4.2f} {R[:, 0].mean():6.3f}  "
                   + "  ".join(f"{d:>+11.3f} ±{s:.3f}" for d, s in zip(diff.mean(axis=0), se, strict=True)),
                   flush=True)
     means = np.mean(rows, axis=0)

@@ -119,6 +119,12 @@ class Design:
         return math.hypot(self.y / 2.0, self.z / 2.0)
 
     @property
+    def reach(self) -> float:
+        """``l / r``: how many pivot radii the legs reach (1 where they just tumble the body;
+        the hand-written navigators' best setting depends on it)."""
+        return self.l / self.pivot_radius
+
+    @property
     def can_tumble(self) -> bool:
         """Whether a leg is long enough to lift the body past its balance point (``l >= r``)."""
         return self.l >= self.pivot_radius
@@ -138,7 +144,7 @@ def tumbling_designs(count: int, seed: int, reach_below: float | None = None) ->
     out: list[Design] = []
     while len(out) < count:
         design = Design.sample(rng)
-        if design.can_tumble and (reach_below is None or design.l / design.pivot_radius < reach_below):
+        if design.can_tumble and (reach_below is None or design.reach < reach_below):
             out.append(design)
     return out
 

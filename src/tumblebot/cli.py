@@ -17,7 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from tumblebot import interrupts
-from tumblebot.cliargs import check_writable, positive_float, positive_int
+from tumblebot.cliargs import check_writable, number, positive_int
 from tumblebot.errors import TumblebotError
 
 __all__ = ["TASK_NAMES", "build_parser", "main", "missing_extra"]  # noqa: F822 (TASK_NAMES: __getattr__)
@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_training_commands(sub)
     add_optimize_command(sub)
     add_report_command(sub)
-    add_build_command(sub, positive_float, check_writable)
+    add_build_command(sub, number, check_writable)
     add_host_commands(sub, positive_int, check_writable)
     add_physics_command(sub)
     add_demo_command(sub)

@@ -16,7 +16,7 @@ from tumblebot.paths import check_writable, check_writable_folder
 
 __all__ = ["Subcommands", "add_mismatch_argument", "add_physics_argument",
            "add_servo_arguments", "check_writable", "check_writable_folder", "count", "non_negative_int",
-           "positive_float", "positive_int", "seed_type", "stall_torque"]
+           "number", "positive_float", "positive_int", "seed_type", "stall_torque"]
 
 Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"  #: what commands add their parsers to
 
@@ -84,11 +84,21 @@ def non_negative_int(text: str) -> int:
     return value
 
 
-def positive_float(text: str) -> float:
+def number(text: str) -> float:
+    """Any float, ``inf`` and ``nan`` included, for a command that checks the value itself
+    (``power``'s design parameters, ``build --xi inf``) and says what is wrong in one line."""
     try:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def positive_float(text: str) -> float:
+    """A finite float above 0 (a length, a step size)."""
+    value = number(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
+    return value
 
 
 def count(text: str) -> int:

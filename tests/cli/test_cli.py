@@ -1,5 +1,6 @@
 """The ``tumblebot`` command as a user types it."""
 
+import argparse
 import json
 import subprocess
 import sys
@@ -8,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from tumblebot.cli import main
+from tumblebot.cliargs import positive_float
 
 TABLE_3_1 = [((0.293, 0.117, 0.158, 0.218), 6.05), ((0.285, 0.117, 0.158, 0.218), 6.00),
              ((0.292, 0.129, 0.098, 0.136), 5.20), ((0.189, 0.104, 0.098, 0.152), 3.76)]
@@ -54,6 +56,20 @@ def test_that_bad_input_gives_one_error_line_and_exit_status_2(args: list[str], 
     err_lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(err_lines) == 1, result.stderr
     assert message in err_lines[0]
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("text", ["-1e-3", "0", "nan", "inf", "-inf", "fast"])
+def test_that_a_step_size_must_be_a_finite_number_above_zero(text: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError):
+        positive_float(text)
+    assert positive_float("1e-4") == 1e-4
+
+
+def test_that_a_negative_learning_rate_is_refused_before_any_work() -> None:
+    result = run_cli("imitate", "--learning-rate", "-1")
+    assert result.returncode == 2
+    assert "--learning-rate: -1 must be a finite number above 0" in result.stderr
     assert "Traceback" not in result.stderr
 
 

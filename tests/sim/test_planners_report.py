@@ -89,8 +89,8 @@ def test_that_reach_below_keeps_the_same_draws_filtered_to_short_legs(planners: 
     from tumblebot.sim.world.design import tumbling_designs
 
     short = tumbling_designs(3, 17, reach_below=1.2)
-    assert len(short) == 3 and all(d.l / d.pivot_radius < 1.2 for d in short)
-    assert short == [d for d in tumbling_designs(200, 17) if d.l / d.pivot_radius < 1.2][:3]
+    assert len(short) == 3 and all(d.reach < 1.2 for d in short)
+    assert short == [d for d in tumbling_designs(200, 17) if d.reach < 1.2][:3]
     assert tumbling_designs(3, 17, None) == tumbling_designs(3, 17)
     with pytest.raises(ValueError, match="must exceed 1"):
         tumbling_designs(3, 17, reach_below=1.0)

@@ -26,7 +26,7 @@ def _records(noise: float = 0.0, seed: int = 0) -> list[dict[str, object]]:
     """A made-up sweep: the second setting gains 0.03 where l/r > 1.4, loses 0.03 elsewhere."""
     rng = np.random.default_rng(seed)
     return [{"design": list(d.as_tuple()),
-             "difference": (0.03 if d.l / d.pivot_radius > 1.4 else -0.03) + noise * float(rng.normal())}
+             "difference": (0.03 if d.reach > 1.4 else -0.03) + noise * float(rng.normal())}
             for d in tumbling_designs(200, seed=seed)]
 
 

@@ -218,11 +218,11 @@ def _choice_file(folder: Path, layout: str = "dual") -> Path:
 
     designs = tumbling_designs(40, seed=1)
     records: list[dict[str, object]] = [{"design": list(d.as_tuple()), "layout": layout,
-                                         "difference": 0.03 if d.l / d.pivot_radius > 1.4 else -0.03}
+                                         "difference": 0.03 if d.reach > 1.4 else -0.03}
                                         for d in designs]
     if layout == "tri-plan":  # and the third setting ahead where they are short
         records = [{**r, "compared": [2, 3], "means": [0.0, 0.0], "errors": [0.01, 0.01],
-                    "differences": [r["difference"], 0.03 if d.l / d.pivot_radius < 1.15 else -0.03]}
+                    "differences": [r["difference"], 0.03 if d.reach < 1.15 else -0.03]}
                    for r, d in zip(records, designs, strict=True)]
     path = folder / "choice.json"
     path.write_text(GotoChoice.fit(records).to_json())
