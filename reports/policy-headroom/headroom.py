@@ -31,6 +31,7 @@ from tumblebot.sim.evaluation.evaluate import episode_seed
 from tumblebot.sim.evaluation.stats import mean_ci95
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
+from tumblebot.sim.world.physics import THESIS
 from tumblebot.sim.world.randomization import Randomization
 
 ACTIONS = [(right, left) for right in range(3) for left in range(3)]
@@ -38,7 +39,8 @@ _env: dict[str, Any] = {}
 
 
 def _init(task: str, design: Design, base: str) -> None:
-    _env["env"] = TumblerEnv(task=task, design=design, randomization=Randomization(design=False))
+    _env["env"] = TumblerEnv(task=task, design=design, randomization=THESIS.randomization(Randomization(design=False)),
+                             **THESIS.env_kwargs())
     _env["gait"] = get_gait(base)
 
 
