@@ -171,7 +171,7 @@ def comparison_summary(comparison: dict[str, Any]) -> str:
     screened = comparison.get("screened_behind", comparison["behind"])
     if len(screened) > len(comparison["behind"]):
         verdict += (f"; {len(screened) - len(comparison['behind'])} of the {len(screened)} behind at first "
-                    f"level on {comparison['confirm_episodes']} fresh episodes")
+                    f"within the bar on {comparison['confirm_episodes']} fresh episodes")
     return (f"{len(comparison['rows'])} designs, {comparison['episodes_per_design']} paired episodes each: "
             f"policy − strongest hand-written mean {comparison['mean_difference']:+.3f}, worst "
             f"{'n/a' if worst is None else f'{worst:+.3f}'} where it reaches {WORKS}; bar {verdict}")

@@ -146,7 +146,7 @@ def read_sweep(path: Path) -> list[dict[str, Any]]:
             Design.from_sequence(record["design"])
             if record.get("layout", "dual") not in CHOICE_LAYOUTS:
                 raise ValueError(f"layout {record.get('layout')!r} is not one of {', '.join(CHOICE_LAYOUTS)}")
-            _comparisons(record)
+            comparisons(record)
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise TrainingError(f"{path}:{number}: not a sweep record ({exc})") from None
         records.append(record)
@@ -169,7 +169,7 @@ SIDES: dict[str, dict[int, str]] = {"dual": {2: "above"}, "dual-plan": {2: "abov
                                     "tri-plan": {2: "above", 3: "below"}}
 
 
-def _comparisons(record: dict[str, Any]) -> dict[int, tuple[float, float]]:
+def comparisons(record: dict[str, Any]) -> dict[int, tuple[float, float]]:
     """A sweep record's paired differences (each later setting minus the first) and their
     standard errors, by setting number; records before ``--compare`` compared setting 2 alone."""
     if "compared" in record:
@@ -311,7 +311,7 @@ class GotoChoice:
             if theirs[0] != settings[0]:
                 raise TrainingError(f"a {record.get('layout', 'dual')} sweep compares other goto settings than "
                                     f"the {layout} layout's")
-            for number, (difference, error) in _comparisons(record).items():
+            for number, (difference, error) in comparisons(record).items():
                 if number <= len(theirs):
                     matches = [k for k in found if settings[k - 1] == theirs[number - 1]]
                     for k in matches:

@@ -56,7 +56,7 @@ def test_that_a_design_behind_by_chance_is_not_behind_once_measured_again(monkey
     assert {c[0] for c in again} == {LUCKY, WEAK} and {c[2] for c in again} == {240}
     assert {c[1] for c in again} == {"policy", "goto", "plan", "plan-short"}
     summary = card_eval.comparison_summary(out)
-    assert "NOT met (1 behind); 1 of the 2 behind at first level on 240 fresh episodes" in summary
+    assert "NOT met (1 behind); 1 of the 2 behind at first within the bar on 240 fresh episodes" in summary
     table = card_eval.comparison_table(out)
     assert "(within the bar on 240 fresh episodes)" in table and "**behind**" in table
 
