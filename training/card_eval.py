@@ -208,11 +208,19 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
     return {"baselines": entry["baselines"], "best_fixed_gait": best}
 
 
+def _confirm(asked: int | None, episodes: int) -> int:
+    """The episodes of a second measurement: ``asked``, or five times ``episodes``, at most :data:`CONFIRM_EPISODES`."""
+    return asked if asked is not None else min(CONFIRM_EPISODES, 5 * episodes)
+
+
 def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: int,
-                    previous: dict[str, Any] | None = None) -> dict[str, Any]:
+                    previous: dict[str, Any] | None = None, confirm: int | None = None) -> dict[str, Any]:
     """The card's evaluation. ``previous``, an earlier card's ``evaluation`` for the same
     task, lends its gait baselines where they still reproduce (see :func:`_recorded_baselines`).
-    Every episode runs under the physics profile the policy was trained under (its card's)."""
+    Every episode runs under the physics profile the policy was trained under (its card's).
+    ``confirm``: the episodes a design behind the strongest hand-written controller is
+    measured again on (default five times the first measurement's, at most
+    :data:`CONFIRM_EPISODES`; 0: none)."""
     physics = PhysicsProfile.from_card(json.loads(card_path(policy).read_text()).get("servo") or {})
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     measured: dict[Design, EvalResult] = {}
@@ -241,9 +249,9 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
         designs = NAV_GRID if task == "nav-flat" else {"thesis ξ = 3 robot": XI3_ROBOT, "random design": RANDOM_DESIGN}
         out["against_hand_written"] = {
             "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, physics,
-                                             confirm=min(CONFIRM_EPISODES, 5 * episodes)),
+                                             confirm=_confirm(confirm, episodes)),
             "fresh": {"design_seed": FRESH_DESIGN_SEED,
                       **hand_written_comparison(policy, task, fresh_designs(task), min(episodes, FRESH_EPISODES),
                                                 seed, workers, physics=physics,
-                                                confirm=min(CONFIRM_EPISODES, 5 * min(episodes, FRESH_EPISODES)))}}
+                                                confirm=_confirm(confirm, min(episodes, FRESH_EPISODES)))}}
     return out

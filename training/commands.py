@@ -266,7 +266,8 @@ def _export(args: argparse.Namespace) -> int:
         from tumblebot.sim.control.policy import card_path
         from tumblebot.training.card_eval import card_evaluation, comparison_summary
 
-        evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous)
+        evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous,
+                                     confirm=args.confirm_episodes)
         card = json.loads(card_path(args.output).read_text())
         card["evaluation"] = evaluation
         card_path(args.output).write_text(json.dumps(card, indent=2) + "\n")
@@ -388,6 +389,10 @@ def _add_export_command(sub: Subcommands) -> None:
                                                 "run may be exported for either navigation task)")
     p.add_argument("--eval-episodes", type=count, default=240,
                    help="episodes per design for the card's evaluation (default 240; 0: skip it)")
+    p.add_argument("--confirm-episodes", type=count, default=None, metavar="N",
+                   help="navigation tasks: measure a design where the policy is behind the strongest hand-written "
+                        "controller again on N fresh episodes before the card calls it behind (default five "
+                        "times the first measurement's episodes, at most 240; 0: do not)")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (default 0)")
     p.add_argument("--workers", type=positive_int, default=1, help="evaluation worker processes (default 1)")
     p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits "

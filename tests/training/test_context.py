@@ -557,7 +557,13 @@ def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger:
     assert len(hand["fixed"]["rows"]) == 12
     assert set(hand["fixed"]["rows"][0]["hand_written"]) == {"goto", "plan", "plan-short"}
     assert len(hand["fresh"]["rows"]) == 24 and hand["fresh"]["design_seed"] == 104729  # drawn afresh
-    assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2",
+    for comparison in hand.values():  # behind at first: measured again on five times the episodes
+        assert comparison["confirm_episodes"] == 10
+        assert set(comparison["behind"]) <= set(comparison["screened_behind"])
+        again = [r for r in comparison["rows"] if "confirmation" in r]
+        assert {r["label"] for r in again} == set(comparison["screened_behind"])
+        assert all(r["confirmation"]["episodes"] == 10 and r["confirmation"]["seed"] == 1000 for r in again)
+    assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2", "--confirm-episodes", "0",
                  "--baselines-from", str(first.with_suffix(".json"))]) == 0
     again = json.loads(second.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
     assert again["baselines_reused_from_previous_card"] is True
@@ -569,7 +575,7 @@ def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger:
     stale["evaluation"]["designs"]["xi3_robot"]["baselines"][best]["mean_R"] += 0.01  # no longer reproduces
     (tmp_path / "stale.json").write_text(json.dumps(stale))
     third = tmp_path / "c" / "nav-flat.onnx"
-    assert main(["export", str(tiny_dagger), "-o", str(third), "--eval-episodes", "2",
+    assert main(["export", str(tiny_dagger), "-o", str(third), "--eval-episodes", "2", "--confirm-episodes", "0",
                  "--baselines-from", str(tmp_path / "stale.json")]) == 0
     rerun = json.loads(third.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
     assert "baselines_reused_from_previous_card" not in rerun
