@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 VENV_BIN = Path(sys.executable).parent
@@ -124,12 +126,7 @@ def test_that_the_site_builds_strictly_with_every_page_and_the_generated_command
 
 
 def test_that_the_command_reference_is_what_help_prints() -> None:
-    from importlib import util
-
-    spec = util.spec_from_file_location("tumblebot_docs_hooks", DOCS / "_hooks" / "site.py")
-    assert spec is not None and spec.loader is not None
-    module = util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script(DOCS / "_hooks" / "site.py", "tumblebot_docs_hooks")
     reference = module.cli_reference()
     help_text = subprocess.run([str(VENV_BIN / "tumblebot"), "optimize", "--help"], capture_output=True, text=True,
                                env={**os.environ, "COLUMNS": module.HELP_COLUMNS}, check=True).stdout

@@ -1,13 +1,12 @@
 """reports/policy-headroom/planners.py: the hand-written alternatives to ``plan`` it measures."""
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
 
+from tests.helpers import load_script
 from tumblebot.defaults import XI3_ROBOT
 from tumblebot.sim.control.goto import NAVIGATORS, SPIN_NEGATIVE, SPIN_POSITIVE, GotoController
 from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
@@ -20,12 +19,7 @@ SCRIPT = Path(__file__).resolve().parents[2] / "reports" / "policy-headroom" / "
 
 @pytest.fixture(scope="module")
 def planners() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("planners", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["planners"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT, "planners")
 
 
 def test_that_each_controller_name_builds_the_controller_it_names(planners: ModuleType) -> None:

@@ -1,14 +1,13 @@
 """reports/policy-headroom/setting_features.py: what predicts which goto setting a body prefers."""
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
 
+from tests.helpers import load_script
 from tumblebot.sim.world.design import tumbling_designs
 
 SCRIPT = Path(__file__).resolve().parents[2] / "reports" / "policy-headroom" / "setting_features.py"
@@ -16,12 +15,7 @@ SCRIPT = Path(__file__).resolve().parents[2] / "reports" / "policy-headroom" / "
 
 @pytest.fixture(scope="module")
 def features() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("setting_features", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["setting_features"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT, "setting_features")
 
 
 def test_that_a_line_in_the_feature_that_made_the_differences_explains_them(features: ModuleType) -> None:
