@@ -103,10 +103,14 @@ def _compare(policy: Path, task: str, label: str, design: Design, episodes: int,
             "p_paired": _paired_p(pol, hand[strongest])}
 
 
+def _works(row: dict[str, Any]) -> bool:
+    """Whether the row's strongest hand-written controller reaches :data:`WORKS`: the bar holds there."""
+    return bool(row["hand_written"][row["strongest"]]["mean_R"] >= WORKS)
+
+
 def _is_behind(row: dict[str, Any]) -> bool:
-    """Whether the row's strongest controller reaches :data:`WORKS` and the policy is more
-    than :data:`TOLERANCE` behind it."""
-    return bool(row["hand_written"][row["strongest"]]["mean_R"] >= WORKS and row["difference"] < -TOLERANCE)
+    """Whether the bar holds on the row's design and the policy is more than :data:`TOLERANCE` behind."""
+    return _works(row) and row["difference"] < -TOLERANCE
 
 
 def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
@@ -120,7 +124,7 @@ def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design],
     it is behind there too (``screened_behind`` lists those found behind first)."""
     rows = [_compare(policy, task, label, design, episodes, seed, workers, physics, (known or {}).get(design))
             for label, design in designs.items()]
-    where_it_works = [r for r in rows if r["hand_written"][r["strongest"]]["mean_R"] >= WORKS]
+    where_it_works = [r for r in rows if _works(r)]
     screened = [r["label"] for r in rows if _is_behind(r)]
     behind = list(screened)
     if confirm > 0:
