@@ -126,15 +126,12 @@ def replay_prediction(holdout: Path, profiles: Sequence[PhysicsProfile], seeds: 
     are read once."""
     from tumblebot.host.calibrate import load_trials
     from tumblebot.sim.calibration import replay
-    from tumblebot.sim.world.env import TumblerEnv
-    from tumblebot.sim.world.randomization import Randomization
 
     trials = load_trials([holdout])
     logged = np.array([np.hypot(t.track.x[-1] - t.track.x[0], t.track.y[-1] - t.track.y[0]) for t in trials])
     out = []
     for profile in profiles:
-        env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
-                         **profile.env_kwargs())
+        env = profile.make_env("nav-flat")
         try:
             simulated = np.array([np.hypot(tk.x[-1] - tk.x[0], tk.y[-1] - tk.y[0])
                                   for j, t in enumerate(trials) for s in range(seeds)

@@ -258,16 +258,10 @@ def world_env(design: Design, servo: PhysicsProfile | None, physics: PhysicsProf
     """The twin world's environment: under a hidden ``physics`` profile (its latency on top
     of the chain's own), or else under ``servo`` with no latency added (the chain is the
     latency). ``reports/twin-gap/replay.py`` rebuilds trials in the same one."""
-    from tumblebot.sim.world.env import TumblerEnv
-    from tumblebot.sim.world.randomization import Randomization
-
     if physics is not None:  # a hidden world: its latency comes on top of the chain's own
-        return TumblerEnv(task="nav-flat", design=design, randomization=physics.randomization(Randomization(
-            design=False)), **physics.env_kwargs())
+        return physics.make_env("nav-flat", design=design)
     # The chain itself (agent, serial, firmware, servo frames) is the latency: none is added.
-    servo = servo or PhysicsProfile()
-    return TumblerEnv(task="nav-flat", design=design, randomization=replace(
-        servo.randomization(Randomization(design=False)), latency=(0.0, 0.0)), **servo.env_kwargs())
+    return replace(servo or PhysicsProfile(), latency=(0.0, 0.0)).make_env("nav-flat", design=design)
 
 
 def _control(env: Any, data: bytes, seed: int, uno: Any, publish: dict[str, bool]) -> dict[str, Any]:
@@ -444,22 +438,14 @@ def simulate_starts(folder: Path, episodes_per_trial: int = 16, physics: Physics
     from tumblebot.host.trial_sets import TrialPlan, load_index
     from tumblebot.sim.control.goto import NAVIGATORS
     from tumblebot.sim.evaluation.rollout import make_actor, run_episode
-    from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.frames import to_task_frame, yaw_quaternion
-    from tumblebot.sim.world.randomization import Randomization
 
     plan = TrialPlan.from_json(json.loads((folder / "plan.json").read_text()))
     index = load_index(folder)
     kind = "goto" if plan.policy in NAVIGATORS else "onnx"
     actor = make_actor(kind, plan.policy, plan.task)
     physics = physics or twin_world_physics(folder)
-    if physics is not None:
-        env = TumblerEnv(task=plan.task, design=Design(*plan.design),
-                         randomization=physics.randomization(Randomization(design=False)), **physics.env_kwargs())
-    else:
-        servo = twin_servo(folder)
-        env = TumblerEnv(task=plan.task, design=Design(*plan.design),
-                         randomization=servo.randomization(Randomization(design=False)), **servo.env_kwargs())
+    env = (physics if physics is not None else twin_servo(folder)).make_env(plan.task, design=Design(*plan.design))
     per_trial: list[list[float]] = []
     try:
         for entry in index["trials"]:

@@ -327,11 +327,7 @@ def profile_at(prior: PhysicsProfile, values: dict[str, float], name: str | None
 # ----------------------------------------------------------------------------- simulating
 def simulate_set(traces: Sequence[Trace], profile: PhysicsProfile, seed: int) -> list[np.ndarray]:
     """Every trace replayed once under ``profile``: its step features, trace by trace."""
-    from tumblebot.sim.world.env import TumblerEnv
-    from tumblebot.sim.world.randomization import Randomization
-
-    env = TumblerEnv(task="nav-flat", randomization=profile.randomization(Randomization(design=False)),
-                     **profile.env_kwargs())
+    env = profile.make_env("nav-flat")
     try:
         return [step_features(trace, replay(env, trace, int(np.random.SeedSequence([seed, j]).generate_state(1)[0])))
                 for j, trace in enumerate(traces)]

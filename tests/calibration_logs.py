@@ -25,14 +25,11 @@ XI3 = THESIS_ROBOTS["3"]
 
 def write_set(folder: Path, hidden: PhysicsProfile, trials: int, seed: int = 0, design: Design = XI3) -> Path:
     """A finished identification trial set of ``trials`` trials on 5 start points."""
-    from tumblebot.sim.world.env import TumblerEnv
-    from tumblebot.sim.world.randomization import Randomization
 
     plan = make_plan((0.0, 0.0), 0.0, 1.0, 5, max(1, trials // 5), "nav-flat", "excite", design, seed,
                      ControllerConfig())
     plan = open_trial_set(folder, plan)
-    env = TumblerEnv(task="nav-flat", randomization=hidden.randomization(Randomization(design=False)),
-                     **hidden.env_kwargs())
+    env = hidden.make_env("nav-flat")
     rng = np.random.default_rng(seed)
     index: dict[str, list[dict[str, object]]] = {"trials": [], "aborted": []}
     try:

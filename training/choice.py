@@ -63,11 +63,7 @@ SEEDING = "episode_seed"
 
 def _sweep_env(physics: PhysicsProfile, task: str = "nav-flat") -> Any:
     """A worker's state: one ``task`` environment under ``physics``, every design its own."""
-    from tumblebot.sim.world.env import TumblerEnv
-    from tumblebot.sim.world.randomization import Randomization
-
-    return TumblerEnv(task=task, randomization=physics.randomization(Randomization(design=False)),
-                      **physics.env_kwargs())
+    return physics.make_env(task)
 
 
 def check_layout(layout: str) -> str:

@@ -50,14 +50,11 @@ def _episode(job: tuple[tuple[float, ...], int, int, list[dict[str, Any]]]) -> l
     from tumblebot.sim.control.goto import GotoConfig, GotoController
     from tumblebot.sim.evaluation.evaluate import episode_seed
     from tumblebot.sim.world.design import Design
-    from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.physics import THESIS
-    from tumblebot.sim.world.randomization import Randomization
 
     design, seed, index, configs = job
     if "env" not in _ENV:  # one environment per worker, as evaluate's runner keeps
-        _ENV["env"] = TumblerEnv(task="nav-flat", randomization=THESIS.randomization(Randomization(design=False)),
-                                 **THESIS.env_kwargs())  # the servo every card is measured under
+        _ENV["env"] = THESIS.make_env("nav-flat")  # the servo every card is measured under
     env = _ENV["env"]
     out = []
     for overrides in [{}, *configs]:

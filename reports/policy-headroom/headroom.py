@@ -32,15 +32,13 @@ from tumblebot.sim.evaluation.stats import mean_ci95
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
 from tumblebot.sim.world.physics import THESIS
-from tumblebot.sim.world.randomization import Randomization
 
 ACTIONS = [(right, left) for right in range(3) for left in range(3)]
 _env: dict[str, Any] = {}
 
 
 def _init(task: str, design: Design, base: str) -> None:
-    _env["env"] = TumblerEnv(task=task, design=design, randomization=THESIS.randomization(Randomization(design=False)),
-                             **THESIS.env_kwargs())
+    _env["env"] = THESIS.make_env(task, design=design)
     _env["gait"] = get_gait(base)
 
 

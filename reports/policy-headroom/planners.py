@@ -135,14 +135,11 @@ def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[fl
     """Final R of one episode under ``plan`` and then each named controller."""
     from tumblebot.sim.control.drivers import episode_seed
     from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
-    from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.physics import THESIS
-    from tumblebot.sim.world.randomization import Randomization
 
     task, design, seed, index, names = job
     if task not in _ENV:  # one environment per worker and task
-        _ENV[task] = TumblerEnv(task=task, randomization=THESIS.randomization(Randomization(design=False)),
-                                **THESIS.env_kwargs())
+        _ENV[task] = THESIS.make_env(task)
     options = {"design": Design.from_sequence(design, allow_out_of_bounds=True)}
     return [run_episode(_ENV[task], GotoActor(controller(name)), episode_seed(seed, index), options).final_R
             for name in ["plan", *names]]

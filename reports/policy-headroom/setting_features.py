@@ -56,14 +56,11 @@ def _episode(job: tuple[str, tuple[float, ...], int, int]) -> tuple[float, float
     """One episode of ``plan``: mean and spread of a spin step's yaw change (rad), mean drive
     step length (m), number of spins. NaN where the episode had none of a kind."""
     from tumblebot.sim.evaluation.evaluate import episode_seed
-    from tumblebot.sim.world.env import TumblerEnv
     from tumblebot.sim.world.physics import THESIS
-    from tumblebot.sim.world.randomization import Randomization
 
     task, design, seed, index = job
     if task not in _ENV:  # one environment per worker and task
-        _ENV[task] = TumblerEnv(task=task, randomization=THESIS.randomization(Randomization(design=False)),
-                                **THESIS.env_kwargs())
+        _ENV[task] = THESIS.make_env(task)
     env = _ENV[task]
     obs, _ = env.reset(seed=episode_seed(seed, index),
                        options={"design": Design.from_sequence(design, allow_out_of_bounds=True)})

@@ -42,11 +42,7 @@ class _Worker:
     def run(self, job: Job) -> Result:
         task, w, index, seed = job
         if task not in self.envs:
-            from tumblebot.sim.world.env import TumblerEnv
-            from tumblebot.sim.world.randomization import Randomization
-
-            randomization = self.physics.randomization(Randomization(design=False))
-            self.envs[task] = TumblerEnv(task=task, randomization=randomization, **self.physics.env_kwargs())
+            self.envs[task] = self.physics.make_env(task)
             controller = self.controllers[task]
             self.actors[task] = make_actor(controller.kind, controller.name, task)
         out = run_episode(self.envs[task], self.actors[task], seed,

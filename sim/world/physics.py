@@ -21,12 +21,15 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tumblebot.sim.errors import SimError
 from tumblebot.sim.world import constants as C
 from tumblebot.sim.world.catalogue import servo
 from tumblebot.sim.world.randomization import Randomization
+
+if TYPE_CHECKING:
+    from tumblebot.sim.world.env import TumblerEnv
 
 MAX_FREE_SPEED = 50.0  #: rad/s; beyond any hobby servo's output shaft
 MAX_HOLD_TORQUE = 10.0  #: N·m
@@ -185,6 +188,16 @@ class PhysicsProfile:
         """The :class:`~tumblebot.sim.world.env.TumblerEnv` keyword arguments of the servo."""
         return {"motor_model": self.motor_model, "stall_torque": self.stall_torque, "free_speed": self.free_speed,
                 "hold_torque": self.hold_torque}
+
+    def make_env(self, task: str, **kwargs: Any) -> TumblerEnv:
+        """A ``task`` environment under this profile (its servo, floor, radio and motor
+        noise) whose design is not drawn: each episode's comes with ``reset`` or a fixed
+        ``design`` in ``kwargs`` (passed on to :class:`~tumblebot.sim.world.env.TumblerEnv`
+        with the rest). What evaluation, sweeps, calibration and the twin run episodes in."""
+        from tumblebot.sim.world.env import TumblerEnv  # pybullet only where an environment is built
+
+        return TumblerEnv(task=task, randomization=self.randomization(Randomization(design=False)),
+                          **self.env_kwargs(), **kwargs)
 
     def randomization(self, base: Randomization) -> Randomization:
         """``base`` with this profile's floor, radio and motor noise."""
