@@ -71,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot import jsonio
 from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
@@ -273,13 +274,6 @@ def decision(folder: Path, world: Path, fitted_profile: PhysicsProfile, trials: 
     return (ties, seeds, agree), detail
 
 
-def _plain(o: object) -> object:
-    """A NumPy scalar as the Python number it holds, for ``json.dumps``."""
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
-
-
 def yardstick_pairs(seeds: int) -> int:
     """Pairs of neighbouring seeds in a ring of ``seeds`` (one for two seeds, none for one)."""
     return seeds if seeds > 2 else seeds - 1
@@ -429,7 +423,7 @@ def main() -> int:
     if earlier is not None:  # the twin and calibration stages are the earlier run's
         summary["calibration_stages"] = earlier.get("calibration_stages", {"date": earlier["date"],
                                                                            "machine": earlier["machine"]})
-    args.json.write_text(json.dumps(summary, indent=2, default=_plain) + "\n")
+    args.json.write_text(jsonio.dumps(summary) + "\n")
     print(f"wrote {args.json}")
     return 0 if all(r["recovery"] for r in rows) else 1
 

@@ -37,12 +37,13 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.cliargs import reach_bound
 from tumblebot.sim.control.drivers import Driver
 from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.control.goto import NAVIGATION_TASKS, NAVIGATORS
 from tumblebot.sim.evaluation.runner import EpisodeRunner
+from tumblebot.sim.evaluation.stats import paired_p
 from tumblebot.sim.optimize import bundled_policies
-from tumblebot.sim.report import paired_p
 from tumblebot.sim.world.design import Design, tumbling_designs
 from tumblebot.training.card_eval import CONFIRM_SEED_OFFSET, TOLERANCE, WORKS
 
@@ -82,7 +83,7 @@ def _arguments() -> tuple[argparse.Namespace, list[str]]:
     ap.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
     ap.add_argument("--designs", type=int, default=24, help="fresh designs (24)")
     ap.add_argument("--design-seed", type=int, default=7919, help="seed the designs are drawn with (7919)")
-    ap.add_argument("--reach-below", type=float, default=None, metavar="L/R",
+    ap.add_argument("--reach-below", type=reach_bound, default=None, metavar="L/R",
                     help="keep only designs whose legs reach less than this many pivot radii (default all)")
     ap.add_argument("--episodes", type=int, default=48, help="episodes per design and controller (48)")
     ap.add_argument("--seed", type=int, default=1, help="episode seed (1)")
@@ -96,8 +97,6 @@ def _arguments() -> tuple[argparse.Namespace, list[str]]:
     args = ap.parse_args()
     if args.designs < 1 or args.episodes < 2 or args.workers < 1 or args.confirm not in (0, *range(2, 100_001)):
         ap.error("--designs and --workers must be at least 1, --episodes at least 2, --confirm 0 or 2–100000")
-    if args.reach_below is not None and not args.reach_below > 1.0:
-        ap.error("--reach-below must exceed 1 (shorter legs cannot tumble the body)")
     hand = [n for n in args.hand_written.split(",") if n]
     if not hand or any(n not in HAND_WRITTEN for n in hand):
         ap.error(f"--hand-written takes a comma-separated list of {', '.join(HAND_WRITTEN)}")

@@ -20,7 +20,6 @@ or beats when its ``e`` is no larger). The target (optimiser issue, item 3): a t
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import tempfile
@@ -29,8 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_optimize import FRESH_SEED, _design, _json, _p, run_recipe, study_config, verdict
+from bench_optimize import FRESH_SEED, _design, _p, run_recipe, study_config, verdict
 
+from tumblebot import jsonio
 from tumblebot.sim.control.policy import bundled_policy
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.optimize import Objective, Recipe, format_xi, front_optima, open_storage, open_study
@@ -113,9 +113,9 @@ def main() -> None:
           + ("tied or better at every ξ" if ok else "WORSE at " + ", ".join(
               f"seed {r['seed']} ξ = {r['xi']}" for r in out if r["verdict"] == "worse")))
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} "
-                                     f"({platform.machine()})", "args": {k: str(v) for k, v in vars(args).items()},
-                                     "rows": out, "all_tied_or_better": ok}, indent=2, default=_json) + "\n")
+    record = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} ({platform.machine()})",
+              "args": {k: str(v) for k, v in vars(args).items()}, "rows": out, "all_tied_or_better": ok}
+    args.json.write_text(jsonio.dumps(record) + "\n")
     print(f"wrote {args.json}")
 
 

@@ -26,8 +26,6 @@ of its episodes.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import platform
 import tempfile
 import time
@@ -36,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot import jsonio
 from tumblebot.sim.control.drivers import Driver
 from tumblebot.sim.control.policy import bundled_policy, sha256_of
 from tumblebot.sim.evaluation.runner import EpisodeRunner
@@ -172,7 +171,7 @@ def main() -> None:
     out = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()} ({platform.machine()}, "
            f"{platform.processor() or 'cpu'})", "args": {k: str(v) for k, v in vars(args).items()},
            "reference": ref, "efficient": rows, "tied_or_better": ok}
-    args.json.write_text(json.dumps(out, indent=2, default=_json) + "\n")
+    args.json.write_text(jsonio.dumps(out) + "\n")
     print(f"wrote {args.json}")
 
 
@@ -188,14 +187,6 @@ def _design(w: tuple[float, ...]) -> str:
 
 def _p(p: float | None) -> str:
     return "n/a" if p is None else f"{p:.3g}"
-
-
-def _json(o: object) -> object:
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    if isinstance(o, np.generic):
-        return o.item()
-    return str(o)
 
 
 if __name__ == "__main__":

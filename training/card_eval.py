@@ -21,6 +21,7 @@ from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.control.goto import NAVIGATION_TASKS, NAVIGATORS
 from tumblebot.sim.control.policy import card_path
 from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate
+from tumblebot.sim.evaluation.stats import paired_p
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design, tumbling_designs
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 
@@ -54,14 +55,6 @@ def _grid() -> dict[str, Design]:
 #: The design grid of the navigation cards (the bar: no more than 0.02 behind the strongest
 #: hand-written controller wherever it reaches 0.5, and ahead of it on average).
 NAV_GRID: dict[str, Design] = _grid()
-
-
-def _paired_p(a: EvalResult, b: EvalResult) -> float:
-    """Two-sided p-value of the paired difference of ``a`` and ``b`` (same episodes)."""
-    diff = a.R - b.R
-    if np.allclose(diff, diff[0]):
-        return 1.0
-    return float(stats.ttest_rel(a.R, b.R).pvalue)
 
 
 #: The seed of the card's fresh designs (the 10 000th prime; training draws its designs
@@ -98,9 +91,9 @@ def _compare(policy: Path, task: str, label: str, design: Design, episodes: int,
     strongest = max(hand, key=lambda name: hand[name].mean_R)
     return {"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
             "hand_written": {name: {"mean_R": r.mean_R, "difference": pol.mean_R - r.mean_R,
-                                    "p_paired": _paired_p(pol, r)} for name, r in hand.items()},
+                                    "p_paired": paired_p(pol.R, r.R)} for name, r in hand.items()},
             "strongest": strongest, "difference": pol.mean_R - hand[strongest].mean_R,
-            "p_paired": _paired_p(pol, hand[strongest])}
+            "p_paired": paired_p(pol.R, hand[strongest].R)}
 
 
 def _works(row: dict[str, Any]) -> bool:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from pathlib import Path
@@ -24,6 +23,7 @@ from tumblebot.cliargs import (
     non_negative_int,
     positive_float,
     positive_int,
+    reach_bound,
     seed_type,
     stall_torque,
 )
@@ -264,7 +264,7 @@ def _export(args: argparse.Namespace) -> int:
     print(f"wrote {args.output} and {args.output.with_suffix('.json')} ({model.num_timesteps} training steps)")
     if args.eval_episodes > 0:
         from tumblebot.sim.control.policy import card_path
-        from tumblebot.training.card_eval import card_evaluation, comparison_summary
+        from tumblebot.training.card_eval import card_evaluation, comparison_summary, comparison_table
 
         evaluation = card_evaluation(args.output, task.name, args.eval_episodes, args.seed, args.workers, previous,
                                      confirm=args.confirm_episodes)
@@ -278,6 +278,7 @@ def _export(args: argparse.Namespace) -> int:
                   f"(p = {entry['p_vs_best_fixed_gait']:.2g}), random {entry['baselines']['random']['mean_R']:.3f}")
         for which, comparison in evaluation.get("against_hand_written", {}).items():
             print(f"against the hand-written controllers, {which} designs: {comparison_summary(comparison)}")
+            print(comparison_table(comparison))
     return 0
 
 
@@ -493,17 +494,6 @@ def _add_choice_command(sub: Subcommands) -> None:
                    help="the layout whose choice to fit (default: the one the sweeps were of)")
     f.add_argument("-o", "--output", type=Path, required=True, help="the choice file (JSON) imitate --choice takes")
     p.set_defaults(func=_choice)
-
-
-def reach_bound(text: str) -> float:
-    """A bound on the reach ``l / r``: a number above 1 (where the legs just tumble the body)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text} must be above 1 (l/r is 1 where the legs just tumble the body)")
-    return value
 
 
 def at_least_two(text: str) -> int:

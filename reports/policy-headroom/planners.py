@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot.cliargs import reach_bound
 from tumblebot.sim.control.goto import (
     FORWARD,
     MIN_STEP_LENGTH,
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller", action="append", required=True, help="a controller to pair with plan")
     parser.add_argument("--designs", type=int, default=12)
     parser.add_argument("--design-seed", type=int, default=11)
-    parser.add_argument("--reach-below", type=float, metavar="L/R",
+    parser.add_argument("--reach-below", type=reach_bound, metavar="L/R",
                         help="keep only designs whose legs reach less than this many pivot radii (l/r)")
     parser.add_argument("--episodes", type=int, default=32)
     parser.add_argument("--seed", type=int, default=1)
@@ -165,10 +166,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.designs < 1 or args.episodes < 2 or args.workers < 1:
         print("planners: need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1", file=sys.stderr)
-        return 2
-    if args.reach_below is not None and args.reach_below <= 1.0:
-        print("planners: --reach-below must exceed 1 (legs shorter than the pivot radius cannot tumble)",
-              file=sys.stderr)
         return 2
     names = args.controller
     print(f"{args.task}, {args.designs} designs drawn with seed {args.design_seed}"

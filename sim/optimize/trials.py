@@ -3,7 +3,6 @@ sampling, and the controllers a study's episodes are driven by."""
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tumblebot import jsonio
 from tumblebot.sim.evaluation.evaluate import Driver
 from tumblebot.sim.optimize.objective import Objective, OptimizeError
 from tumblebot.sim.optimize.recipes import Recipe
@@ -356,4 +356,5 @@ def episode_count(study: optuna.Study) -> int:
 
 
 def to_json(obj: Any) -> str:
-    return json.dumps(obj, indent=2, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else o)
+    """``obj`` as strict JSON (a non-finite number as ``null``; NumPy's numbers as Python's)."""
+    return jsonio.dumps(obj)

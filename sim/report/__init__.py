@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from tumblebot.sim.evaluation.stats import paired_p
 from tumblebot.sim.optimize import OptimizeError, open_storage, parse_policy_files
 from tumblebot.sim.optimize.storage import redact_url
 from tumblebot.sim.report.markdown import render_markdown
@@ -32,7 +33,6 @@ from tumblebot.sim.report.tables import (
     common_controller,
     load_results,
     one_parameter_slices,
-    paired_p,
     rebuild_pairs,
     reference_study,
     universal_check,

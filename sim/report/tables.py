@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from tumblebot.sim.evaluation.stats import mean_ci95
+from tumblebot.sim.evaluation.stats import mean_ci95, paired_p
 from tumblebot.sim.optimize import (
     Objective,
     OptimizeError,
@@ -66,18 +66,6 @@ class Evaluated:
 
     def ci(self, task: str) -> tuple[float, float]:
         return mean_ci95(self.R[task])
-
-
-def paired_p(a: np.ndarray, b: np.ndarray) -> float | None:
-    """Two-sided paired t-test p-value (episodes shared by common random numbers)."""
-    from scipy import stats
-
-    if len(a) < 2 or len(a) != len(b):
-        return None
-    d = np.asarray(a) - np.asarray(b)
-    if np.allclose(d, 0.0):
-        return 1.0
-    return float(stats.ttest_rel(a, b).pvalue)
 
 
 @dataclass

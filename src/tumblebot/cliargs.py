@@ -101,6 +101,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def reach_bound(text: str) -> float:
+    """A bound on a body's reach ``l / r``: a finite number above 1 (where the legs just tumble the body)."""
+    value = number(text)
+    if not (math.isfinite(value) and value > 1.0):
+        raise argparse.ArgumentTypeError(f"{text} must be above 1 (l/r is 1 where the legs just tumble the body)")
+    return value
+
+
 def count(text: str) -> int:
     """A non-negative integer with no upper bound (episodes, say)."""
     try:

@@ -79,7 +79,8 @@ def test_that_the_script_prints_one_row_per_design_and_refuses_an_unknown_contro
     assert "planners: " in capsys.readouterr().err
 
 
-def test_that_reach_below_keeps_the_same_draws_filtered_to_short_legs(planners: ModuleType) -> None:
+def test_that_reach_below_keeps_the_same_draws_filtered_to_short_legs(planners: ModuleType,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
     from tumblebot.sim.world.design import tumbling_designs
 
     short = tumbling_designs(3, 17, reach_below=1.2)
@@ -88,4 +89,6 @@ def test_that_reach_below_keeps_the_same_draws_filtered_to_short_legs(planners: 
     assert tumbling_designs(3, 17, None) == tumbling_designs(3, 17)
     with pytest.raises(ValueError, match="must exceed 1"):
         tumbling_designs(3, 17, reach_below=1.0)
-    assert planners.main(["--controller", "plan", "--reach-below", "0.9"]) == 2
+    with pytest.raises(SystemExit) as stop:
+        planners.main(["--controller", "plan", "--reach-below", "0.9"])
+    assert stop.value.code == 2 and "must be above 1" in capsys.readouterr().err
