@@ -3,7 +3,7 @@ afresh: an evaluation that cannot be tuned to.
 
 Run: ``.venv/bin/python benchmarks/bench_fresh_designs.py [--task nav-flat] [--designs 24]
 [--design-seed 7919] [--reach-below L/R] [--episodes 48] [--seed 1] [--workers 2] [--hand-written goto,…]
-[--confirm 240] [--json FILE]``
+[--confirm 240] [--cross-fit] [--json FILE]``
 
 ``--designs`` designs are drawn uniformly from the bounds with ``--design-seed`` (any seed
 works: the model cards' grid and training never see it), keeping those whose legs can lift
@@ -23,12 +23,19 @@ chance. Each design that fails the bar is therefore measured again on ``--confir
 fresh episodes (seed ``--seed`` + 1000), by the policy and every hand-written
 navigation controller; the verdict at ``--episodes`` stands as the bar's, and the
 re-measurement is printed beside it.
+
+Taking each design's strongest controller on the very episodes it is compared on favours
+that controller: the largest of three noisy means overstates the strongest one's true
+mean. ``--cross-fit`` runs every controller on a second set of as many episodes (seed
+``--seed`` + 2000) and also prints the difference to the strongest chosen on the *other*
+set, both ways round, beside the same-episode one. That estimate errs the other way (a
+controller chosen on noisy means is not always the strongest), so the true difference
+lies between the two.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -37,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from tumblebot import jsonio
 from tumblebot.cliargs import reach_bound
 from tumblebot.sim.control.drivers import Driver
 from tumblebot.sim.control.gaits import GAITS
@@ -47,6 +55,7 @@ from tumblebot.sim.optimize import bundled_policies
 from tumblebot.sim.world.design import Design, tumbling_designs
 from tumblebot.training.card_eval import CONFIRM_SEED_OFFSET, TOLERANCE, WORKS
 
+CROSS_FIT_SEED_OFFSET = 2000  #: the second set of episodes of --cross-fit: apart from the confirmations' (+1000)
 HAND_WRITTEN = [*NAVIGATORS] + [g for g in GAITS if g not in ("random", "excite")]  # excite identifies
 
 
@@ -54,6 +63,32 @@ def _behind(best: float, difference: float) -> bool:
     """The cards' bar (:mod:`tumblebot.training.card_eval`): the strongest hand-written
     controller reaches ``WORKS`` and the policy trails it by more than ``TOLERANCE``."""
     return best >= WORKS and difference < -TOLERANCE
+
+
+def cross_fit(first: dict[str, np.ndarray], second: dict[str, np.ndarray], hand: list[str]) -> tuple[float, float]:
+    """One design's policy − strongest of ``hand`` from two independent sets of episodes
+    (each a controller's final R by episode), averaged over both sets: with the strongest
+    taken on the set compared on (the cards' way), and chosen on the other set."""
+    def strongest(R: dict[str, np.ndarray]) -> str:
+        return max(hand, key=lambda n: float(R[n].mean()))
+
+    same = [float(R["policy"].mean() - R[strongest(R)].mean()) for R in (first, second)]
+    crossed = [float(R["policy"].mean() - R[strongest(other)].mean())
+               for R, other in ((first, second), (second, first))]
+    return float(np.mean(same)), float(np.mean(crossed))
+
+
+def _cross_fit_summary(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
+    """The ``--cross-fit`` line: both estimates' means over the designs, with their standard errors."""
+    parts = []
+    for key, what in (("policy_minus_strongest_same", "taken on the same episodes"),
+                      ("policy_minus_strongest_other", "chosen on the other set")):
+        x = np.array([r["cross_fit"][key] for r in rows])
+        se = float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
+        parts.append(f"{what} {x.mean():+.4f} ± {se:.4f}")
+    return (f"cross-fit over {args.episodes} episodes of seed {args.seed} and of seed "
+            f"{args.seed + CROSS_FIT_SEED_OFFSET}: policy − strongest " + ", ".join(parts)
+            + " (mean ± standard error over the designs; the true difference lies between the two)")
 
 
 def _confirm(runners: dict[str, EpisodeRunner], row: dict[str, Any], args: argparse.Namespace,
@@ -93,6 +128,9 @@ def _arguments() -> tuple[argparse.Namespace, list[str]]:
                     help=f"the hand-written controllers to compare with (default all: {','.join(HAND_WRITTEN)})")
     ap.add_argument("--confirm", type=int, default=240,
                     help="re-measure each design that fails the bar on this many fresh episodes (240; 0: do not)")
+    ap.add_argument("--cross-fit", action="store_true",
+                    help=f"also run every controller on a second set of episodes (seed + {CROSS_FIT_SEED_OFFSET}) and "
+                         "compare the policy with the strongest chosen on the other set")
     ap.add_argument("--json", type=Path, help="also write the per-design results here")
     args = ap.parse_args()
     if args.designs < 1 or args.episodes < 2 or args.workers < 1 or args.confirm not in (0, *range(2, 100_001)):
@@ -126,6 +164,14 @@ def main() -> int:
             rows.append({"design": design.as_dict(), "l_over_r": design.reach,
                          "mean_R": {n: float(v.mean()) for n, v in R.items()}, "best_hand_written": best,
                          "policy_minus_best": diff, "p": p, "fails_bar": fails})
+            if args.cross_fit:
+                seed2 = args.seed + CROSS_FIT_SEED_OFFSET
+                R2 = {name: runner.run(design, [args.task], 0, args.episodes, seed2)[args.task]
+                      for name, runner in runners.items()}
+                same, crossed = cross_fit(R, R2, hand)
+                rows[-1]["cross_fit"] = {"seed": seed2, "mean_R": {n: float(v.mean()) for n, v in R2.items()},
+                                         "policy_minus_strongest_same": same,
+                                         "policy_minus_strongest_other": crossed}
             text = "(" + ", ".join(f"{v:.3f}" for v in design.as_tuple()) + ")"
             print(f"{text:<30} {design.reach:4.2f} "
                   + " ".join(f"{float(R[n].mean()):8.3f}" for n in drivers)
@@ -146,12 +192,14 @@ def main() -> int:
     verdict = "met" if not failed and diffs.mean() > 0 else "NOT met"
     print(f"bar (no more than {TOLERANCE} behind wherever the best reaches {WORKS}, ahead on average): {verdict}"
           + (f" ({len(failed)} design{'' if len(failed) == 1 else 's'} behind)" if failed else ""))
+    if args.cross_fit:
+        print(_cross_fit_summary(rows, args))
     confirmed = [r for r in failed if "confirm" in r]
     if confirmed:
         still = [r for r in confirmed if r["confirm"]["behind"]]
         print(f"re-measured on {args.confirm} fresh episodes: {len(still)} of the {len(confirmed)} still behind")
     if args.json is not None:
-        args.json.write_text(json.dumps({"task": args.task, "policy": policy.name, "design_seed": args.design_seed,
+        args.json.write_text(jsonio.dumps({"task": args.task, "policy": policy.name, "design_seed": args.design_seed,
                                          "reach_below": args.reach_below,
                                          "seed": args.seed, "episodes": args.episodes, "rows": rows}, indent=1))
     return 0 if verdict == "met" else 1
