@@ -388,12 +388,13 @@ def _add_export_command(sub: Subcommands) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="output .onnx file, e.g. policies/nav-flat.onnx")
     p.add_argument("--task", default=None, help="task (default: the run's, from its config.json; a navigation "
                                                 "run may be exported for either navigation task)")
-    p.add_argument("--eval-episodes", type=count, default=240,
-                   help="episodes per design for the card's evaluation (default 240; 0: skip it)")
-    p.add_argument("--confirm-episodes", type=count, default=None, metavar="N",
+    p.add_argument("--eval-episodes", type=none_or_at_least_two, default=240,
+                   help="episodes per design for the card's evaluation, at least 2 for an interval and a p-value "
+                        "(default 240; 0: skip it)")
+    p.add_argument("--confirm-episodes", type=none_or_at_least_two, default=None, metavar="N",
                    help="navigation tasks: measure a design where the policy is behind the strongest hand-written "
                         "controller again on N fresh episodes before the card calls it behind (default five "
-                        "times the first measurement's episodes, at most 240; 0: do not)")
+                        "times the first measurement's episodes, at most 240; 0: do not; else at least 2)")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (default 0)")
     p.add_argument("--workers", type=positive_int, default=1, help="evaluation worker processes (default 1)")
     p.add_argument("--note", default=None, help="free text for the card: status, what was tried, known limits "
@@ -501,6 +502,12 @@ def at_least_two(text: str) -> int:
     if value < 2:
         raise argparse.ArgumentTypeError(f"{value} must be at least 2 (a paired difference needs two episodes)")
     return value
+
+
+def none_or_at_least_two(text: str) -> int:
+    """0 (none) or at least 2 episodes: one episode gives no interval and no paired test."""
+    value = count(text)
+    return value if value == 0 else at_least_two(text)
 
 
 def add_commands(sub: Subcommands) -> None:
