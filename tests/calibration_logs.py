@@ -25,7 +25,6 @@ XI3 = THESIS_ROBOTS["3"]
 
 def write_set(folder: Path, hidden: PhysicsProfile, trials: int, seed: int = 0, design: Design = XI3) -> Path:
     """A finished identification trial set of ``trials`` trials on 5 start points."""
-
     plan = make_plan((0.0, 0.0), 0.0, 1.0, 5, max(1, trials // 5), "nav-flat", "excite", design, seed,
                      ControllerConfig())
     plan = open_trial_set(folder, plan)
