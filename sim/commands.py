@@ -72,11 +72,8 @@ def _urdf(args: argparse.Namespace) -> int:
 
 
 def _sim(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from tumblebot.sim.evaluation.episode import run_gait_episode, write_animation
     from tumblebot.sim.world.design import Design
-    from tumblebot.sim.world.randomization import Randomization
     from tumblebot.sim.world.tasks import get_task
 
     task = get_task(args.task)  # run_gait_episode checks the gait (or goto) for the task
@@ -86,10 +83,8 @@ def _sim(args: argparse.Namespace) -> int:
         if args.video.suffix.lower() not in (".gif", ".png"):
             raise TumblebotError(f"--video {args.video}: the file must end in .gif (or .png)")
         check_writable(args.video, "--video")
-    # randomised: the profile's spreads; else nominal everything, on the profile's floor
-    rnd = (physics.randomization(Randomization(design=False)) if args.randomize
-           else replace(Randomization.off(), friction=physics.friction))
-    result = run_gait_episode(task.name, w, args.gait, args.seed, rnd, record=args.video is not None, physics=physics)
+    result = run_gait_episode(task.name, w, args.gait, args.seed, args.randomize, record=args.video is not None,
+                              physics=physics)
     print(f"{task.name}: {task.description}")
     print(f"{w}, gait {args.gait!r}, {physics.describe()}, seed {args.seed}")
     print(f"{'step':>4}  {'action (R, L)':<18} {'x':>7} {'y':>7} {'z':>6}  {'R':>7}")

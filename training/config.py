@@ -35,7 +35,8 @@ class TrainConfig:
         ent_coef, vf_coef, max_grad_norm: PPO (stable-baselines3 names and meanings);
             ``n_steps`` is per environment.
         net_arch: hidden layer sizes of the policy and value MLPs (separate networks).
-        state_weight, progress_weight: the environment's reward shaping.
+        state_weight, progress_weight, final_weight: the environment's reward shaping
+            (:mod:`tumblebot.sim.world.env`); ``0, 0, 1`` trains on the final state's R alone.
         tumbling_designs_only: draw training designs only among those whose legs can tumble
             the body (:class:`~tumblebot.sim.world.randomization.Randomization`); off in the
             runs behind the bundled policies except where their card's config says so.
@@ -77,6 +78,7 @@ class TrainConfig:
     net_arch: list[int] = field(default_factory=lambda: [128, 128])
     state_weight: float = 1.0
     progress_weight: float = 5.0
+    final_weight: float = 0.0
     tumbling_designs_only: bool = False
     motor_model: str = "dc"
     stall_torque: float = STALL_TORQUE

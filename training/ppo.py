@@ -58,7 +58,8 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 def make_env(task: str, state_weight: float, progress_weight: float,
              randomization: Randomization | None = None, physics: PhysicsProfile = THESIS,
-             observation: str = "thesis", design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
+             observation: str = "thesis", design: list[float] | None = None,
+             final_weight: float = 0.0) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
     ``"memory"`` or ``"residual"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
     from tumblebot.sim.world.design import Design
@@ -69,7 +70,8 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                     randomization=randomization, design=None if design is None else Design.from_sequence(design),
+                     final_weight=final_weight, randomization=randomization,
+                     design=None if design is None else Design.from_sequence(design),
                      **physics.env_kwargs())
     return env if observation == "thesis" else ContextObservation(env, observation)
 
@@ -77,7 +79,7 @@ def make_env(task: str, state_weight: float, progress_weight: float,
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], gym.Env[np.ndarray, np.ndarray]] = partial(
         make_env, config.task, config.state_weight, config.progress_weight, config.randomization(),
-        config.profile(), config.observation, config.design)
+        config.profile(), config.observation, config.design, config.final_weight)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

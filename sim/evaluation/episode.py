@@ -41,20 +41,22 @@ def run_gait_episode(
     design: Design,
     gait: str = "forward",
     seed: int = 0,
-    randomization: Randomization | None = None,
+    randomize: bool = True,
     record: bool = False,
     physics: PhysicsProfile = THESIS,
 ) -> EpisodeResult:
     """One episode of ``task`` for ``design`` driven by a scripted ``gait`` (or ``goto``,
-    the closed-loop navigation controller), with ``physics``'s servo (the floor, latency
-    and noise are ``randomization``'s: see :meth:`PhysicsProfile.randomization`)."""
+    the closed-loop navigation controller) in ``physics``'s world: with its spreads of
+    floor, radio, masses and motor noise drawn from ``seed`` (``randomize``), else at their
+    nominal values (:meth:`PhysicsProfile.nominal`)."""
     from tumblebot.sim.evaluation.evaluate import Driver
     from tumblebot.sim.world.env import TumblerEnv
 
     controller = Driver.of_gait(gait)
     controller.check(task)
     actor = make_actor(controller.kind, controller.name, task)
-    env = TumblerEnv(task=task, design=design, randomization=randomization or Randomization.off(),
+    randomization = physics.randomization(Randomization(design=False)) if randomize else physics.nominal()
+    env = TumblerEnv(task=task, design=design, randomization=randomization,
                      render_mode="rgb_array_list" if record else None, render_size=(480, 360),
                      **physics.env_kwargs())
     try:

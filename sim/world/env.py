@@ -8,8 +8,10 @@ simulated time (240 physics substeps); an episode is 20 steps, then it is trunca
 
 Reward per step (training shaping; every term is in ``info``):
 ``state_weight · R(s_t) + progress_weight · (Φ(s_t) − Φ(s_{t−1}))`` with ``R`` the thesis
-reward of the state and ``Φ`` the task's progress measure. The evaluation metric is the
-thesis reward of the final state, reported as ``info["final_R"]`` on the last step.
+reward of the state and ``Φ`` the task's progress measure, plus ``final_weight · R(s_T)`` on
+the last step. The evaluation metric is the thesis reward of the final state, reported as
+``info["final_R"]`` on the last step; ``state_weight = progress_weight = 0, final_weight = 1``
+trains on exactly that.
 
 Motor models (``motor_model``):
 
@@ -160,6 +162,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         start_distance: ``(min, max)`` start distance from the origin for navigation, m.
         state_weight: weight of ``R(s_t)`` in the per-step reward.
         progress_weight: weight of the progress term in the per-step reward.
+        final_weight: weight of the final state's ``R`` in the last step's reward.
         hold_torque: holding torque of a stopped servo beyond back-EMF braking, N·m.
         settle_seconds: simulated time the robot settles at spawn before step 0.
         terrain: Perlin tile parameters for ``nav-terrain``.
@@ -184,6 +187,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         start_distance: tuple[float, float] = (0.5, 2.0),
         state_weight: float = 1.0,
         progress_weight: float = 5.0,
+        final_weight: float = 0.0,
         hold_torque: float = 0.3,
         settle_seconds: float = 0.5,
         terrain: TerrainConfig | None = None,
@@ -213,6 +217,7 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         self.start_distance = (float(lo), float(hi))
         self.state_weight = state_weight
         self.progress_weight = progress_weight
+        self.final_weight = final_weight
         self.hold_torque = hold_torque
         self.settle_substeps = round(settle_seconds * physics_hz)
         self.terrain_config = terrain if terrain is not None else TerrainConfig()
@@ -351,8 +356,10 @@ class TumblerEnv(gym.Env[np.ndarray, np.ndarray]):
         potential = self.task.potential(position)
         progress = potential - self._potential
         self._potential = potential
-        reward = self.state_weight * r_state + self.progress_weight * progress
         truncated = self._step >= self.episode_steps
+        reward = self.state_weight * r_state + self.progress_weight * progress
+        if truncated:
+            reward += self.final_weight * r_state
         info: dict[str, Any] = {
             "R": r_state,
             "reward_state": self.state_weight * r_state,

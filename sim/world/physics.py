@@ -204,6 +204,11 @@ class PhysicsProfile:
         return replace(base, friction=self.friction, friction_rel_sigma=self.friction_rel_sigma,
                        latency=self.latency, motor_speed_sigma=self.motor_speed_sigma)
 
+    def nominal(self) -> Randomization:
+        """Nothing drawn: masses, floor, radio and motors at their nominal values, on this
+        profile's floor (scripted demos and exact comparisons)."""
+        return replace(Randomization.off(), friction=self.friction)
+
     def describe(self) -> str:
         if replace(self, name=THESIS.name, motor_model=THESIS.motor_model,
                    stall_torque=THESIS.stall_torque).digest() == THESIS.digest():

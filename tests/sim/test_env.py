@@ -68,6 +68,22 @@ def test_that_an_episode_is_20_steps_and_reports_the_final_state_reward(task: st
         env.close()
 
 
+def test_that_a_final_weight_alone_rewards_exactly_the_final_state_r() -> None:
+    # state_weight = progress_weight = 0, final_weight = 1: the return is what evaluation scores
+    shaped, final = (TumblerEnv(task="nav-flat", state_weight=w, progress_weight=5 * w, final_weight=1 - w)
+                     for w in (1.0, 0.0))
+    try:
+        actions = [(2, 2), (2, 0), (0, 2), (1, 1)] * 5
+        _, shaped_rewards, shaped_info = rollout(shaped, 4, actions)
+        _, rewards, info = rollout(final, 4, actions)
+        assert info["final_R"] == shaped_info["final_R"]  # the same episode
+        assert rewards[:-1] == [0.0] * 19 and rewards[-1] == info["final_R"]
+        assert sum(shaped_rewards) != pytest.approx(info["final_R"])
+    finally:
+        shaped.close()
+        final.close()
+
+
 @pytest.mark.parametrize("task", TASK_NAMES)
 def test_that_the_same_seed_gives_the_same_episode_bit_for_bit(task: str) -> None:
     actions = [(2, 2), (2, 1), (0, 2), (1, 1), (2, 0)] * 4

@@ -4,6 +4,7 @@ environment running the profile's servo."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pybullet as p
@@ -24,6 +25,19 @@ def test_that_the_thesis_profile_is_what_the_simulator_assumed_before_profiles()
     finally:
         env.close()
     assert PhysicsProfile.load("thesis") is THESIS
+
+
+def test_that_a_nominal_episode_runs_on_the_profiles_floor_not_the_thesiss() -> None:
+    from tumblebot.sim.evaluation.episode import run_gait_episode
+    from tumblebot.sim.world.design import THESIS_ROBOTS
+
+    icy = PhysicsProfile(name="icy", friction=0.2)
+    assert icy.nominal() == replace(Randomization.off(), friction=0.2)
+    assert THESIS.nominal() == Randomization.off()
+    runs = [run_gait_episode("distance-flat", THESIS_ROBOTS["3"], "forward", seed=1, randomize=False, physics=world)
+            for world in (THESIS, icy, icy)]
+    assert runs[1].final_position == runs[2].final_position  # nominal: nothing drawn
+    assert runs[0].final_position != runs[1].final_position
 
 
 def test_that_a_file_round_trips_and_the_digest_is_the_values_not_the_name(tmp_path: Path) -> None:
