@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -95,15 +96,7 @@ class TrainConfig:
 
         get_task(self.task)
         _check_design(self.design)
-        for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise TrainingError(f"training config {name}={getattr(self, name)!r} must be a positive integer")
-        if not isinstance(self.n_envs, int) or self.n_envs < 0:
-            raise TrainingError(f"training config n_envs={self.n_envs!r} must be >= 0 (0 = one per core)")
-        for name in ("learning_rate", "gamma", "gae_lambda", "clip_range", "max_grad_norm"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not value > 0:
-                raise TrainingError(f"training config {name}={value!r} must be a positive number")
+        self._check_numbers()
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
             raise TrainingError(f"training config init_from={self.init_from!r} must be a checkpoint path or null")
         if not isinstance(self.init_from_steps, int) or self.init_from_steps < 0:
@@ -119,6 +112,26 @@ class TrainConfig:
                                 "must be true or false")
         if not self.net_arch or any(not isinstance(n, int) or n < 1 for n in self.net_arch):
             raise TrainingError(f"training config net_arch={self.net_arch!r} must be a list of positive integers")
+
+    def _check_numbers(self) -> None:
+        """Counts are positive integers, rates and weights finite numbers in range."""
+        for name in ("total_steps", "checkpoint_every", "n_steps", "batch_size", "n_epochs"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise TrainingError(f"training config {name}={value!r} must be a positive integer")
+        if not isinstance(self.n_envs, int) or self.n_envs < 0:
+            raise TrainingError(f"training config n_envs={self.n_envs!r} must be >= 0 (0 = one per core)")
+        for name in ("learning_rate", "gamma", "gae_lambda", "clip_range", "max_grad_norm"):
+            value = getattr(self, name)
+            if not _finite(value) or not value > 0:
+                raise TrainingError(f"training config {name}={value!r} must be a positive number")
+        for name in ("gamma", "gae_lambda"):
+            if getattr(self, name) > 1:
+                raise TrainingError(f"training config {name}={getattr(self, name)!r} must be at most 1")
+        for name in ("ent_coef", "vf_coef", "state_weight", "progress_weight", "final_weight"):
+            value = getattr(self, name)
+            if not _finite(value) or value < 0:
+                raise TrainingError(f"training config {name}={value!r} must be a number >= 0")
 
     def profile(self) -> PhysicsProfile:
         """The physics profile the policy is trained under."""
@@ -172,3 +185,8 @@ def _check_design(design: object) -> None:
         Design.from_sequence(design)
     except DesignError as exc:
         raise TrainingError(f"training config design: {exc}") from None
+
+
+def _finite(value: object) -> bool:
+    """A real number from a config file: not a boolean, not NaN or infinite."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

@@ -250,6 +250,11 @@ def test_that_bad_training_configs_are_rejected() -> None:
         TrainConfig.from_dict({"lr": 1})
     with pytest.raises(TrainingError, match="tumbling_designs_only='yes' must be true or false"):
         TrainConfig.from_dict({"tumbling_designs_only": "yes"})
+    for key, value, message in [("gamma", 1.5, "must be at most 1"), ("learning_rate", float("nan"), "positive"),
+                                ("final_weight", float("inf"), "number >= 0"), ("ent_coef", -0.1, "number >= 0"),
+                                ("state_weight", True, "number >= 0"), ("gae_lambda", "1", "positive")]:
+        with pytest.raises(TrainingError, match=f"{key}=.*{message}"):
+            TrainConfig.from_dict({key: value})
 
 
 def test_that_the_training_environments_follow_the_configs_design_distribution() -> None:
