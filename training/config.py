@@ -44,6 +44,11 @@ class TrainConfig:
         init_from: checkpoint whose policy and value weights started this run (a warm
             start from another task's run, ``tumblebot train --init-from``), or None.
         init_from_steps: training steps that checkpoint had already taken.
+        warm_start_temperature: with ``init_from``, divide the warm start's action logits by
+            this (at least 1). The most likely action, so the deterministic policy, stays the
+            same, but a student fitted to a teacher's labels, sure of every action, then
+            explores in its rollouts, which PPO needs to improve on it; above 1 the value head
+            also starts from zero (a student's value head was never fitted to this reward).
         observation: the policy's input layout, ``"thesis"`` (the thesis's 9 numbers) or
             ``"context"`` (those plus the design, the steps left and the previous
             observation) or ``"memory"`` (``context`` plus goto's motion estimates) or
@@ -86,6 +91,7 @@ class TrainConfig:
     observation: str = "thesis"
     init_from: str | None = None
     init_from_steps: int = 0
+    warm_start_temperature: float = 1.0
     design: list[float] | None = None
     #: the whole physics profile when it differs from ``thesis`` in more than the servo
     #: above (:meth:`tumblebot.sim.world.physics.PhysicsProfile.as_fields`); None for runs before profiles
@@ -125,6 +131,9 @@ class TrainConfig:
             value = getattr(self, name)
             if not _finite(value) or not value > 0:
                 raise TrainingError(f"training config {name}={value!r} must be a positive number")
+        if not _finite(self.warm_start_temperature) or self.warm_start_temperature < 1:
+            raise TrainingError(f"training config warm_start_temperature={self.warm_start_temperature!r} "
+                                "must be a number >= 1")
         for name in ("gamma", "gae_lambda"):
             if getattr(self, name) > 1:
                 raise TrainingError(f"training config {name}={getattr(self, name)!r} must be at most 1")

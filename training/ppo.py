@@ -224,10 +224,12 @@ def new_model(config: TrainConfig, env: VecEnv, run_dir: Path) -> PPO:
                tensorboard_log=str(run_dir / "tb"), seed=config.seed, device="cpu", verbose=0)
 
 
-def warm_start(model: PPO, checkpoint: Path) -> int:
+def warm_start(model: PPO, checkpoint: Path, temperature: float = 1.0) -> int:
     """Copy the policy and value weights of ``checkpoint`` into ``model``; returns the
     steps that checkpoint had trained. The networks must have the same shape, which holds
-    for any two tasks (they share the observation and action layout) with equal ``net_arch``."""
+    for any two tasks (they share the observation and action layout) with equal ``net_arch``.
+    A ``temperature`` above 1 divides the action logits by it and zeroes the value head
+    (:attr:`TrainConfig.warm_start_temperature <tumblebot.training.config.TrainConfig>`)."""
     try:
         source = PPO.load(checkpoint, device="cpu")
     except Exception as exc:  # missing, corrupt, truncated or not SB3 (train() checks existence first)
@@ -238,6 +240,12 @@ def warm_start(model: PPO, checkpoint: Path) -> int:
         first = str(exc).splitlines()[0]
         raise TrainingError(f"--init-from: {checkpoint} has other network shapes than this run "
                             f"(net_arch must match): {first}") from None
+    if temperature != 1.0:
+        with torch.no_grad():
+            for parameter in model.policy.action_net.parameters():
+                parameter.div_(temperature)
+            for parameter in model.policy.value_net.parameters():
+                parameter.zero_()
     return int(source.num_timesteps)
 
 
@@ -272,7 +280,7 @@ def _open_run(config: TrainConfig | None, run_dir: Path, resume: bool, total_ste
     model = new_model(config, env, run_dir)
     if config.init_from is not None:
         try:
-            config.init_from_steps = warm_start(model, Path(config.init_from))
+            config.init_from_steps = warm_start(model, Path(config.init_from), config.warm_start_temperature)
         except TrainingError:
             env.close()
             raise

@@ -241,6 +241,37 @@ def test_that_a_warm_started_run_begins_from_the_other_runs_weights(tiny_run: Pa
     assert saved["init_from_steps"] == source.num_timesteps
 
 
+def test_that_a_warm_start_at_a_temperature_keeps_every_choice_but_explores(tiny_run: Path, tmp_path: Path) -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    from tumblebot.training.ppo import build_vec_env, new_model, warm_start
+
+    source = PPO.load(tiny_run / "latest.zip", device="cpu")
+    config = TrainConfig(task="incline", n_envs=1, net_arch=[16, 16], warm_start_temperature=4.0)
+    env = build_vec_env(config, seed=0)
+    try:
+        model = new_model(config, env, tmp_path)
+        warm_start(model, tiny_run / "latest.zip", config.warm_start_temperature)
+        obs = torch.as_tensor(np.stack([env.observation_space.sample() for _ in range(64)]))
+        with torch.no_grad():
+            hot, cold = (m.policy.get_distribution(obs) for m in (model, source))
+            values = model.policy.predict_values(obs)
+        assert torch.equal(hot.mode(), cold.mode())  # the deterministic policy is the same
+        hot_entropy, cold_entropy = hot.entropy(), cold.entropy()
+        assert hot_entropy is not None and cold_entropy is not None and (hot_entropy > cold_entropy).all()
+        assert isinstance(hot.distribution, list) and isinstance(cold.distribution, list)
+        for mine, theirs in zip(hot.distribution, cold.distribution, strict=True):
+            assert isinstance(mine, torch.distributions.Categorical)
+            assert isinstance(theirs, torch.distributions.Categorical)
+            assert torch.allclose(mine.logits.softmax(-1), (theirs.logits / 4).softmax(-1), atol=1e-6)
+        assert torch.equal(values, torch.zeros_like(values))
+    finally:
+        env.close()
+    with pytest.raises(TrainingError, match=r"warm_start_temperature=0\.5 must be a number >= 1"):
+        TrainConfig(warm_start_temperature=0.5)
+
+
 def test_that_bad_training_configs_are_rejected() -> None:
     with pytest.raises(TrainingError, match="n_steps"):
         TrainConfig(n_steps=0)
