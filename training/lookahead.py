@@ -69,6 +69,7 @@ class WorkerSpec:
     progress_weight: float
     horizon: int  #: the last steps labelled by the search
     draws: int = 0  #: futures drawn anew per action (0: the episode's own, clairvoyant)
+    final_weight: float = 0.0  #: the final state's R in the last step's reward (TrainConfig's)
 
 
 @dataclass
@@ -90,7 +91,7 @@ def _worker(spec: WorkerSpec, student: str | None) -> _Worker:
 
     env = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
         tumbling_designs_only=spec.tumbling_designs_only)), state_weight=spec.state_weight,
-        progress_weight=spec.progress_weight, **spec.physics.env_kwargs())
+        progress_weight=spec.progress_weight, final_weight=spec.final_weight, **spec.physics.env_kwargs())
     return _Worker(env, OnnxPolicy(Path(student)) if student else None, spec)
 
 
