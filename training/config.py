@@ -21,6 +21,20 @@ class TrainingError(TumblebotError):
     """A training run that cannot start or resume (bad config, missing checkpoint, …)."""
 
 
+@dataclass(frozen=True)
+class RewardWeights:
+    """The environment's reward shaping: ``state · R(s) + progress · ΔΦ`` every step, plus
+    ``final · R(s_T)`` on the last (see :class:`~tumblebot.sim.world.env.TumblerEnv`)."""
+
+    state: float = 1.0
+    progress: float = 5.0
+    final: float = 0.0
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """The weights as :class:`~tumblebot.sim.world.env.TumblerEnv`'s keyword arguments."""
+        return {"state_weight": self.state, "progress_weight": self.progress, "final_weight": self.final}
+
+
 @dataclass
 class TrainConfig:
     """Everything that defines a training run. Defaults are the ones the bundled policies
@@ -147,6 +161,10 @@ class TrainConfig:
         if self.physics is not None and not isinstance(self.physics, dict):
             raise TrainingError(f"training config physics={self.physics!r} must be a profile object or null")
         return PhysicsProfile.of_fields(self.motor_model, self.stall_torque, self.physics)
+
+    def reward_weights(self) -> RewardWeights:
+        """The environments' reward shaping."""
+        return RewardWeights(self.state_weight, self.progress_weight, self.final_weight)
 
     def randomization(self) -> Randomization:
         """What the training environments randomise (the model card records the same)."""

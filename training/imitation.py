@@ -463,8 +463,8 @@ def refine(source: Path, run_dir: Path, imitation: ImitationConfig, horizon: int
     old = np.load(source / "dagger.npz")
     before = old["inputs"][:, LAYOUTS["context"].index("steps_left")] > horizon / EPISODE_STEPS + 1e-6
     data = [Labelled.of_goto(old["inputs"][before], old["labels"][before], old["returns"][before])]
-    spec = WorkerSpec(config.task, config.tumbling_designs_only, config.profile(),
-                      config.state_weight, config.progress_weight, horizon, draws, config.final_weight)
+    spec = WorkerSpec(config.task, config.tumbling_designs_only, config.profile(), config.reward_weights(),
+                      horizon, draws)
     optimiser = torch.optim.Adam(model.policy.parameters(), lr=imitation.learning_rate)
     start, steps = time.monotonic(), 0
     logs = _RunLogs(run_dir)

@@ -39,6 +39,7 @@ from tumblebot.sim.control.goto import GotoController
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.sim.evaluation.rollout import GotoActor, drive, run_episode
 from tumblebot.sim.world.physics import PhysicsProfile
+from tumblebot.training.config import RewardWeights
 
 ALL_ACTIONS: tuple[tuple[int, int], ...] = tuple((r, left) for r in range(3) for left in range(3))
 _UNSEARCHED = np.full(len(ALL_ACTIONS), np.nan)  #: the scores of a step goto labels (copied into the record)
@@ -65,11 +66,9 @@ class WorkerSpec:
     task: str
     tumbling_designs_only: bool
     physics: PhysicsProfile
-    state_weight: float
-    progress_weight: float
+    weights: RewardWeights  #: the environment's reward shaping (the training config's)
     horizon: int  #: the last steps labelled by the search
     draws: int = 0  #: futures drawn anew per action (0: the episode's own, clairvoyant)
-    final_weight: float = 0.0  #: the final state's R in the last step's reward (TrainConfig's)
 
 
 @dataclass
@@ -90,8 +89,8 @@ def _worker(spec: WorkerSpec, student: str | None) -> _Worker:
     from tumblebot.sim.world.randomization import Randomization
 
     env = TumblerEnv(task=spec.task, randomization=spec.physics.randomization(Randomization(
-        tumbling_designs_only=spec.tumbling_designs_only)), state_weight=spec.state_weight,
-        progress_weight=spec.progress_weight, final_weight=spec.final_weight, **spec.physics.env_kwargs())
+        tumbling_designs_only=spec.tumbling_designs_only)), **spec.weights.env_kwargs(),
+        **spec.physics.env_kwargs())
     return _Worker(env, OnnxPolicy(Path(student)) if student else None, spec)
 
 

@@ -41,10 +41,14 @@ from tqdm import tqdm
 from tumblebot.sim.world.env import TumblerEnv
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
 from tumblebot.sim.world.randomization import Randomization
-from tumblebot.training.config import TrainConfig, TrainingError
+from tumblebot.training.config import RewardWeights, TrainConfig, TrainingError
 from tumblebot.training.features import ContextObservation, TumblerFeaturesExtractor
 
 CSV_FIELDS = ("steps", "final_R", "shaped_return", "wall_seconds")
+
+
+#: the bundled policies' reward shaping (TrainConfig's defaults)
+DEFAULT_WEIGHTS = RewardWeights()
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -56,10 +60,9 @@ class TrainingInterrupted(KeyboardInterrupt):
         self.steps, self.run_dir = steps, run_dir
 
 
-def make_env(task: str, state_weight: float, progress_weight: float,
+def make_env(task: str, weights: RewardWeights = DEFAULT_WEIGHTS,
              randomization: Randomization | None = None, physics: PhysicsProfile = THESIS,
-             observation: str = "thesis", design: list[float] | None = None,
-             final_weight: float = 0.0) -> gym.Env[np.ndarray, np.ndarray]:
+             observation: str = "thesis", design: list[float] | None = None) -> gym.Env[np.ndarray, np.ndarray]:
     """Environment factory, run inside each worker process; ``observation`` ``"context"``
     ``"memory"`` or ``"residual"`` wraps it in :class:`ContextObservation`; ``design`` fixes the body."""
     from tumblebot.sim.world.design import Design
@@ -69,17 +72,16 @@ def make_env(task: str, state_weight: float, progress_weight: float,
         # Ctrl-C reaches the whole process group; only the trainer handles it (it saves a
         # checkpoint and closes the workers). A worker dying first would hang the trainer.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    env = TumblerEnv(task=task, state_weight=state_weight, progress_weight=progress_weight,
-                     final_weight=final_weight, randomization=randomization,
+    env = TumblerEnv(task=task, randomization=randomization,
                      design=None if design is None else Design.from_sequence(design),
-                     **physics.env_kwargs())
+                     **weights.env_kwargs(), **physics.env_kwargs())
     return env if observation == "thesis" else ContextObservation(env, observation)
 
 
 def build_vec_env(config: TrainConfig, seed: int) -> VecEnv:
     factory: Callable[[], gym.Env[np.ndarray, np.ndarray]] = partial(
-        make_env, config.task, config.state_weight, config.progress_weight, config.randomization(),
-        config.profile(), config.observation, config.design, config.final_weight)
+        make_env, config.task, config.reward_weights(), config.randomization(), config.profile(),
+        config.observation, config.design)
     n = config.envs
     venv: VecEnv = SubprocVecEnv([factory] * n) if n > 1 else DummyVecEnv([factory])
     venv.seed(seed)

@@ -13,8 +13,8 @@ XI3 = list(XI3_ROBOT)
 
 def test_that_a_fixed_design_is_the_body_of_every_training_episode() -> None:
     config = TrainConfig(design=XI3, observation="context")
-    env = make_env(config.task, config.state_weight, config.progress_weight, config.randomization(),
-                   config.profile(), config.observation, config.design)
+    env = make_env(config.task, config.reward_weights(), config.randomization(), config.profile(),
+                   config.observation, config.design)
     try:
         for seed in range(3):
             _, info = env.reset(seed=seed)

@@ -292,12 +292,24 @@ def test_that_the_training_environments_follow_the_configs_design_distribution()
     from tumblebot.training.ppo import make_env
 
     for only in (False, True):
-        env = make_env("nav-flat", 1.0, 5.0, TrainConfig(tumbling_designs_only=only).randomization())
+        env = make_env("nav-flat", randomization=TrainConfig(tumbling_designs_only=only).randomization())
         try:
             randomization = env.unwrapped.randomization  # type: ignore[attr-defined]
             assert randomization.tumbling_designs_only is only and randomization.design
         finally:
             env.close()
+
+
+def test_that_the_training_environments_take_the_configs_reward_weights() -> None:
+    from tumblebot.training.ppo import make_env
+
+    config = TrainConfig(state_weight=0.0, progress_weight=0.5, final_weight=1.0)
+    env = make_env(config.task, config.reward_weights())
+    try:
+        inner = env.unwrapped
+        assert (inner.state_weight, inner.progress_weight, inner.final_weight) == (0.0, 0.5, 1.0)  # type: ignore[attr-defined]
+    finally:
+        env.close()
 
 
 def test_that_ctrl_c_saves_a_checkpoint_and_exits_cleanly_regression_worker_hang(tmp_path: Path) -> None:
