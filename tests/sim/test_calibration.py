@@ -211,9 +211,12 @@ def test_a_fit_finds_a_hidden_free_speed_and_keeps_what_it_cannot_see(tmp_path: 
 
     hidden = PhysicsProfile.from_json({"name": "hidden", "free_speed": 4.6, "friction": 0.7})
     trials = load_trials([write_set(tmp_path / "set", hidden, trials=5)])
-    sim = cal.Simulator([t.trace for t in trials], workers=1, cache=tmp_path / "cache.jsonl")
-    result = cal.calibrate([t.trace for t in trials], [t.track for t in trials], THESIS, "fit", sim,
-                           cal.Settings(design_points=cal.MIN_DESIGN_POINTS, replicates=4))
+    sim = cal.Simulator([t.trace for t in trials], workers=2, cache=tmp_path / "cache.jsonl")
+    try:
+        result = cal.calibrate([t.trace for t in trials], [t.track for t in trials], THESIS, "fit", sim,
+                               cal.Settings(design_points=cal.MIN_DESIGN_POINTS, replicates=4))
+    finally:
+        sim.close()
     speed = result.parameters["free_speed"]
     lo, mid, hi = speed["posterior"]
     assert lo <= 4.6 <= hi, speed  # five trials may not pin it to ±25 %, but they must hold the truth

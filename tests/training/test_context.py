@@ -549,20 +549,29 @@ def test_that_imitate_refuses_a_negative_number_of_draws(capsys: pytest.CaptureF
     assert "--draws: -1 must be an integer from 0 to 1000" in capsys.readouterr().err
 
 
-def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger: Path, tmp_path: Path) -> None:
+def test_that_a_card_reuses_gait_baselines_only_when_they_reproduce(tiny_dagger: Path, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    from tumblebot.training import card_eval
+
     first, second = tmp_path / "a" / "nav-flat.onnx", tmp_path / "b" / "nav-flat.onnx"
-    assert main(["export", str(tiny_dagger), "-o", str(first), "--eval-episodes", "2"]) == 0
+    # by default a design behind is measured again on five times the episodes, at most 240
+    assert (card_eval._confirm(None, 2), card_eval._confirm(None, 100), card_eval._confirm(3, 2)) == (10, 240, 3)
+    assert main(["export", str(tiny_dagger), "-o", str(first), "--eval-episodes", "2", "--confirm-episodes", "4"]) == 0
     card = json.loads(first.with_suffix(".json").read_text())
     hand = card["evaluation"]["against_hand_written"]
     assert len(hand["fixed"]["rows"]) == 12
     assert set(hand["fixed"]["rows"][0]["hand_written"]) == {"goto", "plan", "plan-short"}
     assert len(hand["fresh"]["rows"]) == 24 and hand["fresh"]["design_seed"] == 104729  # drawn afresh
-    for comparison in hand.values():  # behind at first: measured again on five times the episodes
-        assert comparison["confirm_episodes"] == 10
+    fresh = card_eval.fresh_designs("nav-flat")
+    for comparison in hand.values():  # behind at first: measured again on fresh episodes
+        assert comparison["confirm_episodes"] == 4
         assert set(comparison["behind"]) <= set(comparison["screened_behind"])
         again = [r for r in comparison["rows"] if "confirmation" in r]
         assert {r["label"] for r in again} == set(comparison["screened_behind"])
-        assert all(r["confirmation"]["episodes"] == 10 and r["confirmation"]["seed"] == 1000 for r in again)
+        assert all(r["confirmation"]["episodes"] == 4 and r["confirmation"]["seed"] == 1000 for r in again)
+    # the baselines are the card's two designs': the comparisons' design sets can be small from here on
+    monkeypatch.setattr(card_eval, "NAV_GRID", dict(list(card_eval.NAV_GRID.items())[:2]))
+    monkeypatch.setattr(card_eval, "fresh_designs", lambda task: dict(list(fresh.items())[:2]))
     assert main(["export", str(tiny_dagger), "-o", str(second), "--eval-episodes", "2", "--confirm-episodes", "0",
                  "--baselines-from", str(first.with_suffix(".json"))]) == 0
     again = json.loads(second.with_suffix(".json").read_text())["evaluation"]["designs"]["xi3_robot"]
