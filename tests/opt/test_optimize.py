@@ -124,7 +124,7 @@ def test_that_optimize_completes_resumes_and_reports(tmp_path: Path) -> None:
     assert counted_trials(study) == 14 and [t.number for t in study.trials][:len(numbers)] == numbers
 
     out = tmp_path / "DIR"
-    tb_ok("report", "--storage", f"sqlite:///{db}", "--study", "s", "-o", str(out))
+    tb_ok("report", "--storage", f"sqlite:///{db}", "--study", "s", "-o", str(out), "--workers", "2")
     text = (out / "report.md").read_text()
     for heading in ("Table 3.1 equivalent", "Table 3.2 equivalent", "Universal optimum", "Compared with the thesis"):
         assert heading in text
