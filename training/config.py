@@ -96,9 +96,9 @@ class TrainConfig:
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     net_arch: list[int] = field(default_factory=lambda: [128, 128])
-    state_weight: float = 1.0
-    progress_weight: float = 5.0
-    final_weight: float = 0.0
+    state_weight: float = RewardWeights.state
+    progress_weight: float = RewardWeights.progress
+    final_weight: float = RewardWeights.final
     tumbling_designs_only: bool = False
     motor_model: str = "dc"
     stall_torque: float = STALL_TORQUE
