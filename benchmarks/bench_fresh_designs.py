@@ -87,14 +87,13 @@ def _cross_fit_summary(rows: list[dict[str, Any]], args: argparse.Namespace) -> 
             + " (mean ± standard error over the designs; the true difference lies between the two)")
 
 
-def _confirm(runners: dict[str, EpisodeRunner], row: dict[str, Any], args: argparse.Namespace,
+def _confirm(runner: EpisodeRunner, row: dict[str, Any], args: argparse.Namespace,
              hand: list[str]) -> dict[str, Any]:
     """Row ``row``'s design re-measured on ``args.confirm`` fresh episodes: the policy
     against the strongest of ``hand`` there; printed, and returned for the JSON."""
     design = Design(**row["design"])
     seed = args.seed + CONFIRM_SEED_OFFSET
-    R = {name: runners[name].run(design, [args.task], 0, args.confirm, seed)[args.task]
-         for name in ("policy", *hand)}
+    R = runner.run(design, ["policy", *hand], 0, args.confirm, seed)
     best = _strongest(R, hand)
     diff = float(R["policy"].mean() - R[best].mean())
     p = paired_p(R["policy"], R[best])
@@ -148,11 +147,10 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     print(f"{'design (x, y, z, l)':<30} {'l/r':>4} " + " ".join(f"{n:>8}" for n in drivers)
           + f" {'best hand':>10} {'policy-best':>11} {'p':>7}")
-    runners = {name: EpisodeRunner({args.task: d}, workers=args.workers) for name, d in drivers.items()}
+    runner = EpisodeRunner(drivers, workers=args.workers, task=args.task)  # one pool, every controller side by side
     try:
         for design in tumbling_designs(args.designs, args.design_seed, args.reach_below):
-            R = {name: runner.run(design, [args.task], 0, args.episodes, args.seed)[args.task]
-                 for name, runner in runners.items()}
+            R = runner.run(design, list(drivers), 0, args.episodes, args.seed)
             best = _strongest(R, hand)
             diff = float(R["policy"].mean() - R[best].mean())
             p = paired_p(R["policy"], R[best])
@@ -162,8 +160,7 @@ def main() -> int:
                          "policy_minus_best": diff, "p": p, "fails_bar": fails})
             if args.cross_fit:
                 seed2 = args.seed + CROSS_FIT_SEED_OFFSET
-                R2 = {name: runner.run(design, [args.task], 0, args.episodes, seed2)[args.task]
-                      for name, runner in runners.items()}
+                R2 = runner.run(design, list(drivers), 0, args.episodes, seed2)
                 same, crossed = cross_fit(R, R2, hand)
                 rows[-1]["cross_fit"] = {"seed": seed2, "mean_R": {n: float(v.mean()) for n, v in R2.items()},
                                          "policy_minus_strongest_same": same,
@@ -175,10 +172,9 @@ def main() -> int:
                   + ("  FAILS" if fails else ""), flush=True)
         for row in rows:
             if row["fails_bar"] and args.confirm:
-                row["confirm"] = _confirm(runners, row, args, [n for n in hand if n in NAVIGATORS] or hand)
+                row["confirm"] = _confirm(runner, row, args, [n for n in hand if n in NAVIGATORS] or hand)
     finally:
-        for r in runners.values():
-            r.close()
+        runner.close()
     diffs = np.array([r["policy_minus_best"] for r in rows])
     failed = [r for r in rows if r["fails_bar"]]
     each = "; ".join(f"policy − {n}: mean {np.mean([r['mean_R']['policy'] - r['mean_R'][n] for r in rows]):+.3f}"

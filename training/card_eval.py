@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +21,12 @@ from scipy import stats
 from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.control.goto import NAVIGATION_TASKS, NAVIGATORS
 from tumblebot.sim.control.policy import card_path
-from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate
+from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate_with
+from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.evaluation.stats import paired_p
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design, tumbling_designs
 from tumblebot.sim.world.physics import THESIS, PhysicsProfile
+from tumblebot.sim.world.tasks import get_task
 
 XI3_ROBOT = THESIS_ROBOTS["3"]
 
@@ -81,19 +84,45 @@ def fresh_designs(task: str, seed: int = FRESH_DESIGN_SEED) -> dict[str, Design]
     return {f"fresh {k + 1}": d for k, d in enumerate(tumbling_designs(FRESH_DESIGNS[task], seed))}
 
 
-def _compare(policy: Path, task: str, label: str, design: Design, episodes: int, seed: int, workers: int,
-             physics: PhysicsProfile, pol: EvalResult | None = None) -> dict[str, Any]:
-    """One design's row: the policy and every hand-written controller on the same episodes."""
-    pol = pol or evaluate(task, design, Driver("onnx", str(policy)), episodes, seed, workers, progress=True,
-                          physics=physics)
-    hand = {name: evaluate(task, design, Driver("goto", name), episodes, seed, workers, progress=True,
-                           physics=physics) for name in NAVIGATORS}
-    strongest = max(hand, key=lambda name: hand[name].mean_R)
-    return {"label": label, "design": design.as_dict(), "policy_mean_R": pol.mean_R,
-            "hand_written": {name: {"mean_R": r.mean_R, "difference": pol.mean_R - r.mean_R,
-                                    "p_paired": paired_p(pol.R, r.R)} for name, r in hand.items()},
-            "strongest": strongest, "difference": pol.mean_R - hand[strongest].mean_R,
-            "p_paired": paired_p(pol.R, hand[strongest].R)}
+POLICY = "policy"  #: the card runner's lane of the policy; a gait's is "gait:NAME", a navigator's "nav:NAME"
+
+
+def card_runner(policy: Path, task: str, workers: int, physics: PhysicsProfile = THESIS) -> EpisodeRunner:
+    """One pool for all of a card's episodes: the policy, every gait and, on a navigation
+    task, every hand-written navigator, side by side (lanes :data:`POLICY`, ``gait:NAME``, ``nav:NAME``)."""
+    lanes: dict[str, Path | str | Driver] = {POLICY: Driver("onnx", str(policy))}
+    lanes |= {f"gait:{g}": Driver("gait", g) for g in [*FIXED_GAITS, "random"]}
+    if get_task(task).name in NAVIGATION_TASKS:
+        lanes |= {f"nav:{n}": Driver("goto", n) for n in NAVIGATORS}
+    return EpisodeRunner(lanes, workers=workers, physics=physics, task=task)
+
+
+def _run(runner: EpisodeRunner, label: str, design: Design, lanes: list[str], episodes: int,
+         seed: int) -> dict[str, np.ndarray]:
+    """Episodes ``0..episodes-1`` of ``lanes`` on ``design``, together (one progress bar)."""
+    from tqdm import tqdm
+
+    with tqdm(total=episodes * len(lanes), unit="episode", desc=f"compare on {label}", leave=False,
+              mininterval=1.0) as bar:
+        return runner.run(design, lanes, 0, episodes, seed, on_result=partial(bar.update, 1))
+
+
+def _compare(runner: EpisodeRunner, label: str, design: Design, episodes: int, seed: int,
+             pol: np.ndarray | None = None) -> dict[str, Any]:
+    """One design's row: the policy (``pol``, its R if already measured on these episodes)
+    and every hand-written controller on the same episodes."""
+    R = _run(runner, label, design, ([] if pol is not None else [POLICY]) + [f"nav:{n}" for n in NAVIGATORS],
+             episodes, seed)
+    policy = pol if pol is not None else R[POLICY]
+    hand = {name: R[f"nav:{name}"] for name in NAVIGATORS}
+    means = {name: float(np.mean(r)) for name, r in hand.items()}
+    strongest = max(hand, key=lambda name: means[name])
+    mean = float(np.mean(policy))
+    return {"label": label, "design": design.as_dict(), "policy_mean_R": mean,
+            "hand_written": {name: {"mean_R": means[name], "difference": mean - means[name],
+                                    "p_paired": paired_p(policy, r)} for name, r in hand.items()},
+            "strongest": strongest, "difference": mean - means[strongest],
+            "p_paired": paired_p(policy, hand[strongest])}
 
 
 def _works(row: dict[str, Any]) -> bool:
@@ -112,24 +141,24 @@ def _is_behind(row: dict[str, Any]) -> bool:
     return behind(row["hand_written"][row["strongest"]]["mean_R"], row["difference"])
 
 
-def hand_written_comparison(policy: Path, task: str, designs: dict[str, Design], episodes: int, seed: int,
-                            workers: int, known: dict[Design, EvalResult] | None = None,
-                            physics: PhysicsProfile = THESIS, confirm: int = 0) -> dict[str, Any]:
+def hand_written_comparison(runner: EpisodeRunner, designs: dict[str, Design], episodes: int, seed: int,
+                            known: dict[Design, EvalResult] | None = None, confirm: int = 0) -> dict[str, Any]:
     """The policy against each hand-written navigation controller (:data:`NAVIGATORS`) on
-    each design, on the same episodes; a table's rows and the bar's verdict. ``known``
-    holds the policy's results already measured on these episodes, by design. With
+    each design, on the same episodes (``runner``: a :func:`card_runner`); a table's rows
+    and the bar's verdict. ``known`` holds the policy's results already measured on these
+    episodes, by design. With
     ``confirm`` > 0, a design found behind is measured again on that many fresh episodes
     (seed + :data:`CONFIRM_SEED_OFFSET`; the row's ``confirmation``), and is behind only if
     it is behind there too (``screened_behind`` lists those found behind first)."""
-    rows = [_compare(policy, task, label, design, episodes, seed, workers, physics, (known or {}).get(design))
+    known = known or {}
+    rows = [_compare(runner, label, design, episodes, seed, known[design].R if design in known else None)
             for label, design in designs.items()]
     where_it_works = [r for r in rows if _works(r)]
     screened = [r["label"] for r in rows if _is_behind(r)]
     behind = list(screened)
     if confirm > 0:
         for row in (r for r in rows if r["label"] in screened):
-            again = _compare(policy, task, row["label"], designs[row["label"]], confirm, seed + CONFIRM_SEED_OFFSET,
-                             workers, physics)
+            again = _compare(runner, row["label"], designs[row["label"]], confirm, seed + CONFIRM_SEED_OFFSET)
             row["confirmation"] = {"episodes": confirm, "seed": seed + CONFIRM_SEED_OFFSET,
                                    **{k: again[k] for k in ("policy_mean_R", "hand_written", "strongest",
                                                             "difference", "p_paired")}}
@@ -193,8 +222,8 @@ def _welch_from_summary(a: EvalResult, b: dict[str, Any], n: int) -> float:
                                             equal_var=False, alternative="greater").pvalue)
 
 
-def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Design, task: str, episodes: int,
-                        seed: int, workers: int, physics: PhysicsProfile = THESIS) -> dict[str, Any] | None:
+def _recorded_baselines(runner: EpisodeRunner, previous: dict[str, Any] | None, label: str, design: Design,
+                        episodes: int, seed: int) -> dict[str, Any] | None:
     """A previous card's gait baselines for ``label``, if they are for the same design,
     episodes and seed and still reproduce: the gaits do not depend on the policy, so the
     same episodes give the same numbers. Checked by re-running its best fixed gait, which
@@ -205,7 +234,7 @@ def _recorded_baselines(previous: dict[str, Any] | None, label: str, design: Des
     if not entry or entry.get("design") != design.as_dict() or "baselines" not in entry:
         return None
     best = entry["best_fixed_gait"]
-    check = evaluate(task, design, Driver("gait", best), episodes, seed, workers, progress=True, physics=physics)
+    check = evaluate_with(runner, f"gait:{best}", design, episodes, seed, progress=True)
     if check.mean_R != entry["baselines"][best]["mean_R"]:
         return None
     return {"baselines": entry["baselines"], "best_fixed_gait": best}
@@ -225,22 +254,27 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
     measured again on (default five times the first measurement's, at most
     :data:`CONFIRM_EPISODES`; 0: none)."""
     physics = PhysicsProfile.from_card(json.loads(card_path(policy).read_text()).get("servo") or {})
+    with card_runner(policy, task, workers, physics) as runner:
+        return _card_evaluation(runner, task, episodes, seed, previous, confirm)
+
+
+def _card_evaluation(runner: EpisodeRunner, task: str, episodes: int, seed: int, previous: dict[str, Any] | None,
+                     confirm: int | None) -> dict[str, Any]:
     out: dict[str, Any] = {"episodes_per_design": episodes, "seed": seed, "designs": {}}
     measured: dict[Design, EvalResult] = {}
     for label, design in (("xi3_robot", XI3_ROBOT), ("random_design", RANDOM_DESIGN)):
-        pol = evaluate(task, design, Driver("onnx", str(policy)), episodes, seed, workers, progress=True,
-                       physics=physics)
+        pol = evaluate_with(runner, POLICY, design, episodes, seed, progress=True)
         measured[design] = pol
         entry = pol.summary()
-        recorded = _recorded_baselines(previous, label, design, task, episodes, seed, workers, physics)
+        recorded = _recorded_baselines(runner, previous, label, design, episodes, seed)
         if recorded is not None:
             entry.update(recorded, baselines_reused_from_previous_card=True)
             base = recorded["baselines"]
             entry["p_vs_best_fixed_gait"] = _welch_from_summary(pol, base[recorded["best_fixed_gait"]], episodes)
             entry["p_vs_random_policy"] = _welch_from_summary(pol, base["random"], episodes)
         else:
-            gaits = {g: evaluate(task, design, Driver("gait", g), episodes, seed, workers, progress=True,
-                                 physics=physics) for g in [*FIXED_GAITS, "random"]}
+            gaits = {g: evaluate_with(runner, f"gait:{g}", design, episodes, seed, progress=True)
+                     for g in [*FIXED_GAITS, "random"]}
             best_fixed = max(FIXED_GAITS, key=lambda g: gaits[g].mean_R)
             entry["baselines"] = {g: {"mean_R": r.mean_R, "ci95": list(r.ci95)} for g, r in gaits.items()}
             entry["best_fixed_gait"] = best_fixed
@@ -251,10 +285,9 @@ def card_evaluation(policy: Path, task: str, episodes: int, seed: int, workers: 
         # The grid on flat ground; on terrain (six times slower to simulate) the card's two designs.
         designs = NAV_GRID if task == "nav-flat" else {"thesis ξ = 3 robot": XI3_ROBOT, "random design": RANDOM_DESIGN}
         out["against_hand_written"] = {
-            "fixed": hand_written_comparison(policy, task, designs, episodes, seed, workers, measured, physics,
+            "fixed": hand_written_comparison(runner, designs, episodes, seed, measured,
                                              confirm=_confirm(confirm, episodes)),
             "fresh": {"design_seed": FRESH_DESIGN_SEED,
-                      **hand_written_comparison(policy, task, fresh_designs(task), min(episodes, FRESH_EPISODES),
-                                                seed, workers, physics=physics,
+                      **hand_written_comparison(runner, fresh_designs(task), min(episodes, FRESH_EPISODES), seed,
                                                 confirm=_confirm(confirm, min(episodes, FRESH_EPISODES)))}}
     return out

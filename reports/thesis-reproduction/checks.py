@@ -61,14 +61,14 @@ def robustness(args: argparse.Namespace) -> dict[str, Any]:
     storage = open_storage(args.storage, must_exist=True)
     optima = {name: front_optima(load_study(storage, study), XIS)
               for name, study in (("policy", args.policy_study), ("goto", args.goto_study))}
-    runners = {"policy": EpisodeRunner({TASK: bundled_policy(TASK)}, workers=args.workers),
-               "goto": EpisodeRunner({TASK: Driver.of_gait("goto")}, workers=args.workers)}
+    runner = EpisodeRunner({"policy": bundled_policy(TASK), "goto": Driver.of_gait("goto")}, workers=args.workers,
+                           task=TASK)
     cache: dict[tuple[str, tuple[float, ...]], np.ndarray] = {}
 
     def R(controller: str, d: Design) -> np.ndarray:
         key = (controller, d.as_tuple())
         if key not in cache:
-            cache[key] = runners[controller].run(d, [TASK], 0, args.episodes, args.seed)[TASK]
+            cache[key] = runner.run(d, [controller], 0, args.episodes, args.seed)[controller]
         return cache[key]
 
     rows = []
@@ -87,8 +87,7 @@ def robustness(args: argparse.Namespace) -> dict[str, Any]:
             rows.append(row)
             print(f"robustness ξ = {_label(xi)}: policy optimum {_w(a)}, goto optimum {_w(b)}", flush=True)
     finally:
-        for r in runners.values():
-            r.close()
+        runner.close()
     return {"episodes": args.episodes, "seed": args.seed, "rows": rows}
 
 
@@ -116,10 +115,9 @@ def retrain(args: argparse.Namespace) -> dict[str, Any]:
             subprocess.run([*tb, "export", str(run_dir), "-o", str(policy), "--eval-episodes", "0"], check=True,
                            stdin=subprocess.DEVNULL)
             print(f"retrained on {name} {_w(design)} in {time.monotonic() - started:.0f} s", flush=True)
-        results = {}
-        for label, path in (("bundled", bundled_policy(TASK)), ("retrained", policy)):
-            with EpisodeRunner({TASK: path}, workers=args.workers) as runner:
-                results[label] = runner.run(design, [TASK], 0, args.episodes, args.seed)[TASK]
+        with EpisodeRunner({"bundled": bundled_policy(TASK), "retrained": policy}, workers=args.workers,
+                           task=TASK) as runner:
+            results = runner.run(design, ["bundled", "retrained"], 0, args.episodes, args.seed)
         out["bodies"][name] = {
             "design": design.as_tuple(), "e": energy_per_metre(design),
             "R_bundled": float(np.mean(results["bundled"])), "R_retrained": float(np.mean(results["retrained"])),

@@ -25,7 +25,7 @@ from tumblebot.sim.world.physics import PhysicsProfile
 from tumblebot.sim.world.power import energy_per_metre
 from tumblebot.sim.world.tasks import get_task
 
-__all__ = ["Driver", "EvalResult", "episode_seed", "evaluate"]
+__all__ = ["Driver", "EvalResult", "episode_seed", "evaluate", "evaluate_with"]
 
 
 @dataclass
@@ -87,23 +87,38 @@ def evaluate(task: str, design: Design, controller: Driver, episodes: int, seed:
              workers: int = 1, progress: bool = False, physics: PhysicsProfile | None = None) -> EvalResult:
     """Run ``episodes`` episodes and collect the final-state rewards."""
     spec = get_task(task)
-    physics = physics or PhysicsProfile()
-    if episodes < 1:
-        raise SimError(f"episodes={episodes} must be at least 1")
     if workers < 1:
         raise SimError(f"workers={workers} must be at least 1")
-    if seed < 0:
-        raise SimError(f"seed={seed} must be a non-negative integer")
-    start = time.perf_counter()
+    _check(episodes, seed)
     with EpisodeRunner({spec.name: controller}, workers=workers, physics=physics) as runner:  # checks the controller
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        return evaluate_with(runner, spec.name, design, episodes, seed, progress)
 
-            bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {spec.name}", leave=False, mininterval=1.0)
-        R, pos = runner.run_outcomes(design, [spec.name], 0, episodes, seed,
-                                     on_result=None if bar is None else partial(bar.update, 1))[spec.name]
+
+def evaluate_with(runner: EpisodeRunner, lane: str, design: Design, episodes: int, seed: int = 0,
+                  progress: bool = False) -> EvalResult:
+    """:func:`evaluate` on a runner already started: lane ``lane``'s controller and task
+    (see :class:`~tumblebot.sim.evaluation.runner.EpisodeRunner`), under the runner's
+    physics. The same episodes, so the same numbers, as :func:`evaluate`."""
+    _check(episodes, seed)
+    task, controller = runner.lane(lane)
+    start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {task}", leave=False, mininterval=1.0)
+    try:
+        R, pos = runner.run_outcomes(design, [lane], 0, episodes, seed,
+                                     on_result=None if bar is None else partial(bar.update, 1))[runner.lane_key(lane)]
+    finally:
         if bar is not None:
             bar.close()
-    return EvalResult(spec.name, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
-                      time.perf_counter() - start, physics)
+    return EvalResult(task, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
+                      time.perf_counter() - start, runner.physics)
+
+
+def _check(episodes: int, seed: int) -> None:
+    if episodes < 1:
+        raise SimError(f"episodes={episodes} must be at least 1")
+    if seed < 0:
+        raise SimError(f"seed={seed} must be a non-negative integer")
