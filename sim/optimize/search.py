@@ -104,11 +104,13 @@ def promotion_scores(study: optuna.Study, objective: Objective, xi: float) -> di
     With three or more results, the posterior mean of the GP on ``R``
     (:mod:`~tumblebot.sim.optimize.surrogate`: every batch weighted by its own noise, a
     screening batch and a full batch as low- and high-fidelity looks at the same ``R``)
-    divided by the exact ``(e+1)^ξ``; before that, and for the monotone wrapper (not linear
-    in ``R``), :func:`screen_scores`."""
+    divided by the exact ``(e+1)^ξ``, for every trial but those whose own episodes put them in
+    the study's worst tenth (:func:`~tumblebot.sim.optimize.surrogate.capped`: the GP sees
+    them raised, so it could rate one as well as its neighbours); before that, and for the
+    monotone wrapper (not linear in ``R``), :func:`screen_scores`."""
     from tumblebot.sim.optimize import surrogate
 
-    posterior = surrogate.study_posterior(study, objective.weights, xi) \
+    posterior = surrogate.study_posterior(study, objective.weights, xi, promotable=True) \
         if objective.variant == "thesis" else {}
     return posterior or screen_scores(study, objective.at(xi))
 

@@ -313,3 +313,39 @@ def test_that_one_screen_that_barely_tumbled_does_not_condemn_the_legs_between()
         between = np.array([[*small[:3], r + m] for m in (0.015, 0.02, 0.025)])
         mu, _ = model.predict(model.features(between))
         assert float(mu.min()) > 0.85, (seed, mu)
+
+
+def _as_study(obs: list[surrogate.Observation]) -> optuna.Study:
+    """Screened trials of a nav-flat study holding these observations' episodes (4 each)."""
+    from tumblebot.sim.optimize.storage import TrialRecord
+    from tumblebot.sim.world.design import BOUNDS
+
+    study = optuna.create_study(direction="maximize")
+    dists: dict[str, optuna.distributions.BaseDistribution] = {
+        n: optuna.distributions.FloatDistribution(lo, max(hi, lo + 1e-9)) for n, (lo, hi) in BOUNDS.items()}
+    for o in obs:
+        params = {n: float(np.clip(v, *BOUNDS[n])) for n, v in zip("xyzl", o.design, strict=True)}
+        attrs = TrialRecord(R={"nav-flat": [float(v) for v in o.S[:4]]}, e=o.e, batch=4).__dict__
+        study.add_trial(optuna.trial.create_trial(params=params, distributions=dists, value=float(np.mean(o.S[:4])),
+                                                  user_attrs=attrs))
+    return study
+
+
+def test_that_a_design_whose_own_screen_the_cap_hides_is_not_promoted() -> None:
+    """A front study (2026-12-07) spent one of its three full batches on the design of least
+    energy, legs just past the pivot radius: capped, its screen of 0.59 read as the worst
+    tenth, and beside good designs the GP rated it 0.91; its full batch gave 0.75. A design
+    whose own episodes the cap raises is not a promotion candidate."""
+    from tumblebot.sim.optimize.search import promotion_scores
+
+    for seed in range(20, 23):
+        obs, _, _ = _hole(np.random.default_rng(seed))
+        hole = 20  # the one screen that barely tumbled (-0.85)
+        assert hole in surrogate.capped(obs) and len(surrogate.capped(obs)) <= len(obs) // 10 + 1
+        rated = surrogate.posterior_objective(surrogate.fit(obs), obs, 0.0)
+        assert rated[hole] > float(np.mean(obs[hole].S)) + 1.0  # what the GP makes of it, capped
+        study = _as_study(obs)
+        scores = promotion_scores(study, Objective({"nav-flat": 1.0}, 0.0), 0.0)
+        capped_now = surrogate.capped(surrogate.observations(study, {"nav-flat": 1.0}))
+        assert hole in capped_now
+        assert set(scores) == {t.number for t in study.trials} - capped_now

@@ -31,6 +31,7 @@ from tumblebot.sim.optimize import (
     promotion_scores,
     promotions,
     screen_scores,
+    surrogate,
 )
 from tumblebot.sim.world.design import Design
 
@@ -184,7 +185,8 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     best = best_candidate(study)
     assert best is not None and best.batch == 60 and best.trial in promoted
     scores = promotion_scores(study, Objective({"nav-flat": 1.0}, 3.0), 3.0)
-    assert set(scores) == {t.number for t in screened}
+    hidden = surrogate.capped(surrogate.observations(study, {"nav-flat": 1.0}))  # their own episodes: worst tenth
+    assert hidden and set(scores) == {t.number for t in screened} - hidden
     top = max(scores, key=lambda n: scores[n])
     assert top in promoted  # the most promising design (GP posterior) got its full batch before the end
     # the optimum is the full batch the GP rates best, not the luckiest 60 episodes
