@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ from scipy import stats
 from tumblebot.sim.control.gaits import GAITS
 from tumblebot.sim.control.goto import NAVIGATION_TASKS, NAVIGATORS
 from tumblebot.sim.control.policy import card_path
-from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate_with
+from tumblebot.sim.evaluation.evaluate import Driver, EvalResult, evaluate_with, run_lanes
 from tumblebot.sim.evaluation.runner import EpisodeRunner
 from tumblebot.sim.evaluation.stats import paired_p
 from tumblebot.sim.world.design import THESIS_ROBOTS, Design, tumbling_designs
@@ -97,22 +96,12 @@ def card_runner(policy: Path, task: str, workers: int, physics: PhysicsProfile =
     return EpisodeRunner(lanes, workers=workers, physics=physics, task=task)
 
 
-def _run(runner: EpisodeRunner, label: str, design: Design, lanes: list[str], episodes: int,
-         seed: int) -> dict[str, np.ndarray]:
-    """Episodes ``0..episodes-1`` of ``lanes`` on ``design``, together (one progress bar)."""
-    from tqdm import tqdm
-
-    with tqdm(total=episodes * len(lanes), unit="episode", desc=f"compare on {label}", leave=False,
-              mininterval=1.0) as bar:
-        return runner.run(design, lanes, 0, episodes, seed, on_result=partial(bar.update, 1))
-
-
 def _compare(runner: EpisodeRunner, label: str, design: Design, episodes: int, seed: int,
              pol: np.ndarray | None = None) -> dict[str, Any]:
     """One design's row: the policy (``pol``, its R if already measured on these episodes)
     and every hand-written controller on the same episodes."""
-    R = _run(runner, label, design, ([] if pol is not None else [POLICY]) + [f"nav:{n}" for n in NAVIGATORS],
-             episodes, seed)
+    lanes = ([] if pol is not None else [POLICY]) + [f"nav:{n}" for n in NAVIGATORS]
+    R = {k: r for k, (r, _) in run_lanes(runner, design, lanes, episodes, seed, f"compare on {label}").items()}
     policy = pol if pol is not None else R[POLICY]
     hand = {name: R[f"nav:{name}"] for name in NAVIGATORS}
     means = {name: float(np.mean(r)) for name, r in hand.items()}

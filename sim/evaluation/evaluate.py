@@ -25,7 +25,7 @@ from tumblebot.sim.world.physics import PhysicsProfile
 from tumblebot.sim.world.power import energy_per_metre
 from tumblebot.sim.world.tasks import get_task
 
-__all__ = ["Driver", "EvalResult", "episode_seed", "evaluate", "evaluate_with"]
+__all__ = ["Driver", "EvalResult", "episode_seed", "evaluate", "evaluate_with", "run_lanes"]
 
 
 @dataclass
@@ -102,19 +102,22 @@ def evaluate_with(runner: EpisodeRunner, lane: str, design: Design, episodes: in
     _check(episodes, seed)
     task, controller = runner.lane(lane)
     start = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=episodes, unit="episode", desc=f"evaluate {task}", leave=False, mininterval=1.0)
-    try:
-        R, pos = runner.run_outcomes(design, [lane], 0, episodes, seed,
-                                     on_result=None if bar is None else partial(bar.update, 1))[runner.lane_key(lane)]
-    finally:
-        if bar is not None:
-            bar.close()
+    R, pos = run_lanes(runner, design, [lane], episodes, seed,
+                       f"evaluate {task}" if progress else None)[runner.lane_key(lane)]
     return EvalResult(task, design, controller.label(), seed, R, np.hypot(pos[:, 0], pos[:, 1]), pos,
                       time.perf_counter() - start, runner.physics)
+
+
+def run_lanes(runner: EpisodeRunner, design: Design, lanes: list[str], episodes: int, seed: int,
+              progress: str | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """:meth:`EpisodeRunner.run_outcomes` of episodes ``0..episodes-1`` of ``lanes``
+    together, under a progress bar titled ``progress`` (none if None)."""
+    if progress is None:
+        return runner.run_outcomes(design, lanes, 0, episodes, seed)
+    from tqdm import tqdm
+
+    with tqdm(total=episodes * len(lanes), unit="episode", desc=progress, leave=False, mininterval=1.0) as bar:
+        return runner.run_outcomes(design, lanes, 0, episodes, seed, on_result=partial(bar.update, 1))
 
 
 def _check(episodes: int, seed: int) -> None:

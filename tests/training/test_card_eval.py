@@ -25,13 +25,17 @@ class _Scripted:
         self.means = means
         self.calls: list[tuple[Design, str, int, int]] = []
 
-    def run(self, design: Design, lanes: list[str], start: int, stop: int, seed: int,
-            on_result: Callable[[], object] | None = None) -> dict[str, np.ndarray]:
+    def run_outcomes(self, design: Design, lanes: list[str], start: int, stop: int, seed: int,
+                     on_result: Callable[[], object] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         out = {}
         for lane in lanes:
             name = lane.removeprefix("nav:")
             self.calls.append((design, name, stop - start, seed))
-            out[lane] = self.means[design, seed][name] + np.linspace(-0.05, 0.05, stop - start)
+            R = self.means[design, seed][name] + np.linspace(-0.05, 0.05, stop - start)
+            out[lane] = (R, np.zeros((stop - start, 3)))
+            for _ in range(stop - start):
+                if on_result is not None:
+                    on_result()
         return out
 
 
