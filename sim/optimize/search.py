@@ -29,6 +29,7 @@ from tumblebot.sim.optimize.trials import (
     episode_count,
     full_batch_results,
     make_sampler,
+    screen_episodes,
     trial_design,
 )
 from tumblebot.sim.world.design import BOUNDS, PARAMETERS, Design
@@ -340,7 +341,8 @@ def _run_trial(study: optuna.Study, trial: optuna.Trial, objective: Objective, r
         return None, 0
     # Ctrl-C or a crash from here on: optimize() fails the trial and flags it interrupted.
     started = time.perf_counter()
-    R, e, per_episode = _evaluate(objective, runner, design, 0, recipe.screen_batch, seed, on_result)
+    start, stop = screen_episodes(study, trial.number, recipe)
+    R, e, per_episode = _evaluate(objective, runner, design, start, stop, seed, on_result)
     value = float(np.mean(per_episode))
     TrialRecord.write(trial, e=e, batch=recipe.screen_batch if objective.tasks else 0, R=R,
                       mean_R={t: float(np.mean(r)) for t, r in R.items()}, seconds=time.perf_counter() - started)

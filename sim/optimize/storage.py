@@ -66,6 +66,11 @@ class StudyConfig:
     #: more than the servo model and stall torque above; None otherwise (and for every study
     #: made before profiles existed), so those studies resume unchanged.
     physics: dict[str, Any] | None = None
+    #: which episodes an efficient study's screens run: ``"own"`` (each trial's screen runs
+    #: episodes no other trial runs, :func:`~tumblebot.sim.optimize.trials.screen_episodes`),
+    #: or ``"shared"`` (episodes ``0..s-1`` for every trial: studies made before own screens
+    #: existed, which resume so). A promotion adds episodes ``s..B-1``, shared by every full batch.
+    screens: str = "shared"
 
     @classmethod
     def of(cls, objective: Objective, recipe: Recipe, seed: int, policies: dict[str, str],
@@ -75,7 +80,7 @@ class StudyConfig:
         kept = physics.as_fields()
         return cls(dict(objective.weights), xi, objective.variant, recipe.name, recipe.batch, recipe.screen_batch,
                    recipe.startup, seed, policies, controller, kept["motor_model"], kept["stall_torque"],
-                   [format_xi(x) for x in objective.front], kept["physics"])
+                   [format_xi(x) for x in objective.front], kept["physics"], "own")
 
     def profile(self) -> PhysicsProfile:
         """The study's physics profile (the world of every episode)."""
@@ -87,10 +92,11 @@ class StudyConfig:
         return Objective(dict(self.weights), xi, self.variant, front)  # type: ignore[arg-type]
 
     def differences(self, other: StudyConfig) -> list[str]:
-        """What differs in the objective or its noise (``startup`` may change between runs)."""
+        """What differs in the objective or its noise (``startup`` may change between runs, and
+        a study keeps the ``screens`` it was made with)."""
         mine, theirs = asdict(self), asdict(other)
         out = [f"{k}: study has {mine[k]!r}, command asks for {theirs[k]!r}"
-               for k in mine if k not in ("startup", "physics") and mine[k] != theirs[k]]
+               for k in mine if k not in ("startup", "physics", "screens") and mine[k] != theirs[k]]
         said = any(line.startswith(("motor_model", "stall_torque")) for line in out)
         if not said and not self.profile().same_as(other.profile()):  # the values matter, not the profile's name
             out.append(f"physics: study has {self.profile().describe()}, command asks for {other.profile().describe()}")

@@ -180,7 +180,7 @@ def test_that_the_efficient_recipe_screens_then_promotes_to_the_full_batch(tmp_p
     assert all(len(t.user_attrs["R"]["nav-flat"]) == 4 for t in screened)
     promoted = promotions(study)
     assert promoted and all(len(p["R"]["nav-flat"]) == 60 for p in promoted.values())
-    for number, p in promoted.items():  # promotion extends the same episodes (common random numbers)
+    for number, p in promoted.items():  # a promotion keeps the screen's episodes and adds the shared ones
         assert p["R"]["nav-flat"][:4] == study.trials[number].user_attrs["R"]["nav-flat"]
     best = best_candidate(study)
     assert best is not None and best.batch == 60 and best.trial in promoted
