@@ -128,6 +128,7 @@ class RModel:
     def __init__(self, U: np.ndarray, y: np.ndarray, noise: np.ndarray, start: Hyper | None = None) -> None:
         self.U, self.y, self.noise = np.asarray(U, float), np.asarray(y, float), np.asarray(noise, float)
         self.features: Callable[[np.ndarray], np.ndarray] = to_unit  #: designs (metres) → GP inputs
+        self.capped: set[int] = set()  #: trial numbers whose batch means were raised (:func:`fit`)
         self.mean = float(np.sum(self.y / self.noise) / np.sum(1.0 / self.noise))
         self.hyper = self._fit(start)
         self._factor(self.U, self.y, self.noise)
@@ -285,10 +286,12 @@ def _targets(obs: Sequence[Observation]) -> tuple[np.ndarray, np.ndarray, np.nda
 def fit(obs: Sequence[Observation], start: Hyper | None = None) -> RModel:
     """The GP on the observations (on :func:`margin_features`), each screen corrected by
     :func:`screening_bias` and the worst raised to the :data:`CAP_QUANTILE` of the others.
-    The model remembers its features (``model.features``)."""
-    U, y, noise, _ = _targets(obs)
+    The model remembers its features (``model.features``) and which trials it raised
+    (``model.capped``, as :func:`capped` gives)."""
+    U, y, noise, raised = _targets(obs)
     model = RModel(U, y, noise, start)
     model.features = margin_features
+    model.capped = {o.number for o, r in zip(obs, raised, strict=True) if r}
     return model
 
 
@@ -321,9 +324,10 @@ def study_posterior(study: optuna.Study, weights: dict[str, float], xi: float,
     obs = observations(study, weights)
     if len(obs) < 3:
         return {}
-    scores = posterior_objective(fit(obs), obs, xi)
+    model = fit(obs)
+    scores = posterior_objective(model, obs, xi)
     if promotable:
-        for number in capped(obs):
+        for number in model.capped:
             del scores[number]
     return scores
 

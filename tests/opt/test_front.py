@@ -342,7 +342,9 @@ def test_that_a_design_whose_own_screen_the_cap_hides_is_not_promoted() -> None:
         obs, _, _ = _hole(np.random.default_rng(seed))
         hole = 20  # the one screen that barely tumbled (-0.85)
         assert hole in surrogate.capped(obs) and len(surrogate.capped(obs)) <= len(obs) // 10 + 1
-        rated = surrogate.posterior_objective(surrogate.fit(obs), obs, 0.0)
+        model = surrogate.fit(obs)
+        assert model.capped == surrogate.capped(obs)  # the fit keeps what it raised
+        rated = surrogate.posterior_objective(model, obs, 0.0)
         assert rated[hole] > float(np.mean(obs[hole].S)) + 1.0  # what the GP makes of it, capped
         study = _as_study(obs)
         scores = promotion_scores(study, Objective({"nav-flat": 1.0}, 0.0), 0.0)
