@@ -187,7 +187,7 @@ class Labelled:
                      ("inputs", "labels", "returns", "goto_labels", "values")))
 
 
-def _joint_log_probs(distribution: Any) -> torch.Tensor:
+def joint_log_probs(distribution: Any) -> torch.Tensor:
     """``(B, 9)`` log-probabilities of the joint actions (right, left) in
     :data:`tumblebot.training.lookahead.ALL_ACTIONS` order, from SB3's per-motor distribution."""
     right, left = (d.logits for d in distribution.distribution)
@@ -226,7 +226,7 @@ def fit(model: object, optimiser: torch.optim.Optimizer, data: Labelled, config:
         in_search = searched[idx]
         chosen = torch.where(in_search[:, None], own[idx], a[idx])  # goto's own action in the search
         distribution = policy.get_distribution(x[idx])
-        expected = (torch.exp(_joint_log_probs(distribution)) * advantage[idx]).sum(dim=1)  # 0 outside it
+        expected = (torch.exp(joint_log_probs(distribution)) * advantage[idx]).sum(dim=1)  # 0 outside it
         action_loss = -distribution.log_prob(chosen) * torch.where(in_search, GOTO_WEIGHT, 1.0) - expected
         state_values = policy.predict_values(x[idx])
         loss = action_loss.mean() + 0.5 * torch.nn.functional.mse_loss(state_values.flatten(), g[idx])

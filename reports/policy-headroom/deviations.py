@@ -87,9 +87,9 @@ def drive(worker: _Worker, seed: int, branch_at: set[int]) -> tuple[float, list[
     branches: list[Branch] = []
     info: dict[str, Any] = {}
     for k in range(env.episode_steps):
-        context = copy.deepcopy(policy.context)
+        context = copy.deepcopy(policy.context) if k in branch_at else None  # the memory before this step
         action = policy.act(obs)
-        if k in branch_at:
+        if context is not None:
             own = ALL_ACTIONS.index((int(action[0]), int(action[1])))
             inputs = copy.deepcopy(context)(obs)
             branches.append(Branch(k, env.snapshot(), context, obs, own, inputs))
@@ -190,12 +190,16 @@ def cross_fit(rows: np.ndarray, halves: np.ndarray, least: int = 10, t: float = 
             "held_out": _mean_se(pooled) if len(pooled) > 1 else (float("nan"), float("nan"))}
 
 
-def episode_halves(inputs: np.ndarray) -> np.ndarray:
-    """Which half (0 or 1) each deviation's episode falls in: every episode has a body of
-    its own, so the episodes are the distinct designs, taken alternately in sorted order
-    (whatever order the workers finished them in)."""
+def episode_numbers(inputs: np.ndarray) -> np.ndarray:
+    """Each deviation's episode, numbered 0, 1, … in sorted order of the designs: every
+    episode has a body of its own (whatever order the workers finished them in)."""
     _, episode = np.unique(np.round(inputs[:, DESIGN], 9), axis=0, return_inverse=True)
-    return np.asarray(episode.reshape(-1) % 2)
+    return np.asarray(episode.reshape(-1))
+
+
+def episode_halves(inputs: np.ndarray) -> np.ndarray:
+    """Which half (0 or 1) each deviation's episode falls in: its episodes taken alternately."""
+    return episode_numbers(inputs) % 2
 
 
 def report(summary: dict[str, Any], episodes: int, finals: np.ndarray | None, policy: Path) -> str:
@@ -280,9 +284,9 @@ def main(argv: list[str] | None = None) -> int:
         rows_table, inputs, finals = collect(args.policy, args.task, args.seed, args.episodes, args.deviations,
                                              args.workers)
     summary = summarise(rows_table)
-    halves = episode_halves(inputs)
-    summary["cross_fit"] = cross_fit(rows_table, halves)
-    episodes = len(np.unique(np.round(inputs[:, DESIGN], 9), axis=0))
+    numbers = episode_numbers(inputs)
+    summary["cross_fit"] = cross_fit(rows_table, numbers % 2)
+    episodes = int(numbers.max()) + 1
     print(report(summary, episodes, finals, args.policy))
     if args.save:
         np.savez_compressed(args.save, inputs=inputs.astype(np.float32), step=rows_table[:, 0].astype(int),

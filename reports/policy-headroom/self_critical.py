@@ -33,6 +33,7 @@ import torch
 
 from tumblebot.sim.evaluation.pool import WorkerPool
 from tumblebot.training.config import TrainConfig
+from tumblebot.training.imitation import joint_log_probs
 from tumblebot.training.lookahead import ALL_ACTIONS
 
 TRAINING_SEEDS = 10_000_000  #: iteration i's groups are episodes TRAINING_SEEDS + i·groups + j
@@ -59,10 +60,8 @@ def _worker(run: str) -> _Worker:
 
 
 def joint_logits(policy: Any, x: torch.Tensor) -> torch.Tensor:
-    """``(B, 9)`` logits of the joint actions in :data:`ALL_ACTIONS` order."""
-    right, left = (d.logits for d in policy.get_distribution(x).distribution)
-    joint: torch.Tensor = (right[:, :, None] + left[:, None, :]).reshape(-1, 9)
-    return joint
+    """``(B, 9)`` log-probabilities of the joint actions in :data:`ALL_ACTIONS` order."""
+    return joint_log_probs(policy.get_distribution(x))
 
 
 def _own(policy: Any, obs: np.ndarray) -> tuple[int, np.ndarray]:
