@@ -244,12 +244,24 @@ def collect(policy: Path, task: str, seed: int, episodes: int, deviations: int, 
     return np.array(rows, dtype=float), np.array(inputs, dtype=np.float32), np.array(finals)
 
 
+FIELDS = ("inputs", "step", "own", "other", "advantage")  #: what a --save file holds (and ``finals``)
+
+
 def load(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """What :func:`collect` returned, from a file ``--save`` wrote."""
-    data = np.load(path)
-    rows = np.column_stack([data["step"], data["own"], data["other"], data["advantage"]]).astype(float)
-    finals = data["finals"] if "finals" in data and len(data["finals"]) else None
-    return rows, data["inputs"], finals
+    """What :func:`collect` returned, from a file ``--save`` wrote; a ValueError naming
+    what is wrong with any other file."""
+    try:
+        data = np.load(path, allow_pickle=False)
+        if not hasattr(data, "files") or not set(FIELDS) <= set(data.files):
+            raise ValueError(f"it holds no deviations (an .npz with {', '.join(FIELDS)})")
+        inputs = np.asarray(data["inputs"], dtype=np.float32)
+        rows = np.column_stack([data[name] for name in FIELDS[1:]]).astype(float)
+        finals = np.asarray(data["finals"], dtype=float) if "finals" in data.files else np.zeros(0)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path} is not a file deviations.py --save wrote: {exc}") from None
+    if inputs.ndim != 2 or inputs.shape[1] <= DESIGN.stop or len(inputs) != len(rows) or not len(rows):
+        raise ValueError(f"{path} is not a file deviations.py --save wrote: its inputs and rows do not match")
+    return rows, inputs, finals if len(finals) else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -279,7 +291,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"deviations: {exc}", file=sys.stderr)
         return 2
     if args.source:
-        rows_table, inputs, finals = load(args.source)
+        try:
+            rows_table, inputs, finals = load(args.source)
+        except ValueError as exc:
+            print(f"deviations: {exc}", file=sys.stderr)
+            return 2
     else:
         rows_table, inputs, finals = collect(args.policy, args.task, args.seed, args.episodes, args.deviations,
                                              args.workers)

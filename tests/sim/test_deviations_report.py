@@ -74,3 +74,21 @@ def test_that_the_halves_split_episodes_by_their_design_whatever_the_order(devia
     assert list(halves) == [0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1]
     order = np.random.default_rng(0).permutation(12)
     assert list(deviations.episode_halves(inputs[order])) == list(halves[order])
+
+
+def test_that_a_saved_file_reads_back_and_any_other_file_gets_one_error_line(
+        deviations: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    saved = tmp_path / "d.npz"
+    rng = np.random.default_rng(2)
+    inputs = rng.normal(size=(16, 32)).astype(np.float32)
+    np.savez_compressed(saved, inputs=inputs, step=np.arange(16) % 20, own=np.zeros(16, int),
+                        other=np.ones(16, int), advantage=np.linspace(-0.1, 0.1, 16), finals=np.full(2, 0.5))
+    rows, back, finals = deviations.load(saved)
+    assert np.array_equal(back, inputs) and rows.shape == (16, 4) and list(finals) == [0.5, 0.5]
+    assert np.allclose(rows[:, 3], np.linspace(-0.1, 0.1, 16))
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    (tmp_path / "text.npz").write_bytes(b"not numpy at all")
+    for name in ("text.npz", "other.npz", "missing.npz"):
+        assert deviations.main(["--from", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("deviations: ") and len(err.splitlines()) == 1 and name in err
