@@ -62,7 +62,8 @@ def test_that_bench_check_passes_on_the_twin_and_names_a_reversed_servo_or_a_tri
         assert checks["servos"]["ok"] is False
         assert checks["servos"]["detail"].startswith("right servo reversed"), checks["servos"]
         assert "tumblebot trim --servo right --direction +1" in checks["servos"]["fix"]
-        assert checks["trims"]["ok"] and checks["watchdog"]["ok"]
+        assert checks["trims"]["ok"], checks["trims"]
+        assert checks["watchdog"]["ok"], checks["watchdog"]
 
         assert tb("trim", *link(stack), "--servo", "right", "--direction", "+1").returncode == 0
         assert tb("trim", *link(stack), "--servo", "left", "--neutral", "1580").returncode == 0
