@@ -10,6 +10,7 @@ from typing import Any, cast
 import pytest
 
 from tumblebot.host import bench as B
+from tumblebot.host.mocap import Pose
 
 TRIMS = {"right": {"neutral_us": 1500, "direction": 1}, "left": {"neutral_us": 1500, "direction": -1}}
 
@@ -70,9 +71,6 @@ class _Agent:
     def poll(self) -> None:
         pass
 
-    def stop(self) -> None:
-        pass
-
 
 class ScriptedBody(B.Bench):
     """A bench on a simulated clock: the legs are driven until the host has been silent for
@@ -90,9 +88,7 @@ class ScriptedBody(B.Bench):
             return 2.0 * t  # driven: a tumbler rolls about 2 rad/s
         return 2.0 * self.stopped_at + self.after_stop(t - self.stopped_at)
 
-    def run(self, seconds: float, command: tuple[int, int] | None = (0, 0)) -> list[Any]:
-        from tumblebot.host.mocap import Pose
-
+    def run(self, seconds: float, command: tuple[int, int] | None = (0, 0)) -> list[Pose]:
         if command is None and self.silent_since is None:
             self.silent_since = self.clock
         elif command is not None:
@@ -106,7 +102,7 @@ class ScriptedBody(B.Bench):
             poses.append(Pose(self.clock, (0.0, 0.0, 0.05), (math.sin(half), 0.0, 0.0, math.cos(half))))
         return poses
 
-    def stop(self) -> list[Any]:
+    def stop(self) -> list[Pose]:
         return self.run(0.3)
 
     def telemetry(self, timeout: float = B.ANSWER_WAIT, accept: Any = lambda body: True) -> dict[str, Any] | None:
