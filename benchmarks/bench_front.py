@@ -1,7 +1,7 @@
 """One front study against four per-ξ studies: does it find every ξ's optimum for a third of
 their episodes?
 
-Run: ``.venv/bin/python benchmarks/bench_front.py [--budget 1200] [--seeds 1] [--workers 2]``
+Run: ``.venv/bin/python benchmarks/bench_front.py [--budget 1200] [--seeds 1] [--first-seed 0] [--workers 2]``
 
 For each seed, on ``--task`` (nav-flat), the same episodes everywhere (common random numbers):
 
@@ -44,7 +44,9 @@ XIS = (0.0, 1.0, 3.0, math.inf)
 def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="nav-flat")
-    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=1, help="how many seeds to run (1)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="the first of them (0): --first-seed 1 --seeds 1 runs seed 1 alone")
     ap.add_argument("--budget", type=int, default=1200, help="episodes of each finite-ξ study")
     ap.add_argument("--batch", type=int, default=240)
     ap.add_argument("--screen", type=int, default=4)
@@ -57,7 +59,10 @@ def _arguments() -> argparse.Namespace:
                          "reuses finished per-ξ studies")
     ap.add_argument("--front-study", default="front", help="name of the front study (a new name reruns only it)")
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/front.json"))
-    return ap.parse_args()
+    args = ap.parse_args()
+    if args.seeds < 1 or args.first_seed < 0:
+        ap.error("need --seeds ≥ 1 and --first-seed ≥ 0")
+    return args
 
 
 def main() -> None:
@@ -69,7 +74,7 @@ def main() -> None:
     out: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp, EpisodeRunner({args.task: bundled_policy(args.task)},
                                                              workers=args.workers) as runner:
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             folder = Path(args.storage) if args.storage else Path(tmp)
             folder.mkdir(parents=True, exist_ok=True)
             url = f"sqlite:///{folder / f'front-{seed}.db'}"

@@ -1,10 +1,13 @@
 """Hand-written alternatives to ``plan``, paired with it on designs drawn afresh.
 
-Each controller drives the same episodes as ``plan`` (``tumblebot evaluate``'s seeding and
-randomisation, the thesis's physics) on ``--designs`` designs drawn uniformly from the
-bounds with ``--design-seed``, keeping those whose legs can tumble the body. Per design it
-prints ``plan``'s mean final R and each controller's paired difference with its standard
-error; then the means over the designs. Controllers (``--controller``, repeatable):
+Each controller drives the same episodes as the baseline (``--baseline``, ``plan`` unless
+told; ``tumblebot evaluate``'s seeding and randomisation, the thesis's physics) on
+``--designs`` designs drawn uniformly from the bounds with ``--design-seed``, keeping those
+whose legs can tumble the body (and, with ``--reach-below`` or ``--reach-above``, whose
+reach ``l / r`` lies below or at least at that bound). Per design it prints the baseline's
+mean final R and each controller's paired difference with its standard error; then the
+means over the designs. Controllers (``--controller``, repeatable; ``--baseline`` takes the
+same names):
 
 * ``goto`` or ``plan``: the controllers ``--gait`` names.
 * ``SETTING=VALUE;…``: ``plan`` with other :class:`~tumblebot.sim.control.goto.GotoConfig`
@@ -18,6 +21,9 @@ error; then the means over the designs. Controllers (``--controller``, repeatabl
 
     .venv/bin/python reports/policy-headroom/planners.py --task nav-flat --designs 12 \\
         --design-seed 11 --episodes 32 --seed 1 --controller near=1 --controller predict=0.02
+    .venv/bin/python reports/policy-headroom/planners.py --reach-above 1.361 --designs 40 \
+        --design-seed 29 --episodes 32 --seed 6 --baseline "turn_tolerance=0.3;spin_steps_left=4" \
+        --controller "turn_tolerance=0.3;spin_steps_left=5"
 """
 
 from __future__ import annotations
@@ -133,7 +139,7 @@ def controller(name: str) -> GotoController:
 
 
 def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[float]:
-    """Final R of one episode under ``plan`` and then each named controller."""
+    """Final R of one episode under each named controller, in order (the baseline first)."""
     from tumblebot.sim.control.drivers import episode_seed
     from tumblebot.sim.evaluation.rollout import GotoActor, run_episode
     from tumblebot.sim.world.physics import THESIS
@@ -143,23 +149,27 @@ def _episode(job: tuple[str, tuple[float, ...], int, int, list[str]]) -> list[fl
         _ENV[task] = THESIS.make_env(task)
     options = {"design": Design.from_sequence(design, allow_out_of_bounds=True)}
     return [run_episode(_ENV[task], GotoActor(controller(name)), episode_seed(seed, index), options).final_R
-            for name in ["plan", *names]]
+            for name in names]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="nav-flat", choices=NAVIGATION_TASKS)
-    parser.add_argument("--controller", action="append", required=True, help="a controller to pair with plan")
+    parser.add_argument("--controller", action="append", required=True,
+                        help="a controller to pair with the baseline (repeatable)")
+    parser.add_argument("--baseline", default="plan", help="the controller each is paired with (plan)")
     parser.add_argument("--designs", type=int, default=12)
     parser.add_argument("--design-seed", type=int, default=11)
     parser.add_argument("--reach-below", type=reach_bound, metavar="L/R",
                         help="keep only designs whose legs reach less than this many pivot radii (l/r)")
+    parser.add_argument("--reach-above", type=reach_bound, metavar="L/R",
+                        help="keep only designs whose legs reach at least this many pivot radii (l/r)")
     parser.add_argument("--episodes", type=int, default=32)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--workers", type=int, default=2, help="worker processes (2; 1 runs in this process)")
     args = parser.parse_args(argv)
     try:
-        for name in args.controller:
+        for name in [args.baseline, *args.controller]:
             controller(name)
     except (ValueError, TypeError) as exc:
         print(f"planners: {exc}", file=sys.stderr)
@@ -167,18 +177,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.designs < 1 or args.episodes < 2 or args.workers < 1:
         print("planners: need --designs ≥ 1, --episodes ≥ 2 and --workers ≥ 1", file=sys.stderr)
         return 2
+    if args.reach_below is not None and args.reach_above is not None and args.reach_above >= args.reach_below:
+        print("planners: --reach-above must be below --reach-below", file=sys.stderr)
+        return 2
     names = args.controller
+    base = "plan" if args.baseline == "plan" else "base"
     print(f"{args.task}, {args.designs} designs drawn with seed {args.design_seed}"
           + (f" with l/r below {args.reach_below}" if args.reach_below is not None else "")
-          + f", {args.episodes} paired "
-          f"episodes each (seed {args.seed}): plan's mean final R and each controller's difference (± s.e.)")
-    print(f"{'design (x, y, z, l)':30s} {'l/r':>4s} {'plan':>6s}  " + "  ".join(f"{n:>18s}" for n in names))
+          + (f" with l/r at least {args.reach_above}" if args.reach_above is not None else "")
+          + f", {args.episodes} paired episodes each (seed {args.seed}): "
+          + ("" if base == "plan" else f"the baseline {args.baseline}: ")
+          + f"{base}'s mean final R and each controller's difference (± s.e.)")
+    print(f"{'design (x, y, z, l)':30s} {'l/r':>4s} {base:>6s}  " + "  ".join(f"{n:>18s}" for n in names))
     rows = []
     with contextlib.ExitStack() as stack:  # --workers 1 runs in this process
         pool = (stack.enter_context(multiprocessing.get_context("forkserver").Pool(args.workers))
                 if args.workers > 1 else None)
-        for design in tumbling_designs(args.designs, args.design_seed, args.reach_below):
-            jobs = [(args.task, design.as_tuple(), args.seed, i, names) for i in range(args.episodes)]
+        for design in tumbling_designs(args.designs, args.design_seed, args.reach_below, args.reach_above):
+            jobs = [(args.task, design.as_tuple(), args.seed, i, [args.baseline, *names])
+                    for i in range(args.episodes)]
             R = np.array(pool.map(_episode, jobs, chunksize=4) if pool is not None else [_episode(j) for j in jobs])
             diff = R[:, 1:] - R[:, :1]
             se = diff.std(axis=0, ddof=1) / math.sqrt(args.episodes)

@@ -133,19 +133,33 @@ class Design:
         return f"Design(x={self.x:.3f}, y={self.y:.3f}, z={self.z:.3f}, l={self.l:.3f})"
 
 
-def tumbling_designs(count: int, seed: int, reach_below: float | None = None) -> list[Design]:
+MAX_DRAWS = 1_000_000  #: draws :func:`tumbling_designs` makes before it gives up on its reach bounds
+
+
+def tumbling_designs(count: int, seed: int, reach_below: float | None = None,
+                     reach_above: float | None = None) -> list[Design]:
     """``count`` designs drawn uniformly from the bounds with ``seed``, keeping those whose
     legs can lift the body (:attr:`Design.can_tumble`), in the order drawn; with
-    ``reach_below``, only those whose legs reach less than that many pivot radii
-    (``l / r``; the same draws, filtered)."""
-    if reach_below is not None and reach_below <= 1.0:
-        raise ValueError(f"reach_below={reach_below} must exceed 1 (shorter legs cannot tumble the body)")
+    ``reach_below`` (``reach_above``), only those whose legs reach less (at least) that many
+    pivot radii (``l / r``; the same draws, filtered)."""
+    for name, bound in (("reach_below", reach_below), ("reach_above", reach_above)):
+        if bound is not None and bound <= 1.0:
+            raise ValueError(f"{name}={bound} must exceed 1 (shorter legs cannot tumble the body)")
+    if reach_below is not None and reach_above is not None and reach_above >= reach_below:
+        raise ValueError(f"reach_above={reach_above} must be below reach_below={reach_below}: no design has both")
     rng = np.random.default_rng(seed)
     out: list[Design] = []
-    while len(out) < count:
+    for _ in range(MAX_DRAWS):
+        if len(out) >= count:
+            break
         design = Design.sample(rng)
-        if design.can_tumble and (reach_below is None or design.reach < reach_below):
+        if (design.can_tumble and (reach_below is None or design.reach < reach_below)
+                and (reach_above is None or design.reach >= reach_above)):
             out.append(design)
+    else:
+        if len(out) < count:
+            raise ValueError(f"only {len(out)} of {count} designs in {MAX_DRAWS} draws meet the reach bounds "
+                             f"(below {reach_below}, at least {reach_above}): the bounds are too narrow")
     return out
 
 

@@ -92,3 +92,34 @@ def test_that_reach_below_keeps_the_same_draws_filtered_to_short_legs(planners: 
     with pytest.raises(SystemExit) as stop:
         planners.main(["--controller", "plan", "--reach-below", "0.9"])
     assert stop.value.code == 2 and "must be above 1" in capsys.readouterr().err
+
+
+def test_that_reach_above_keeps_the_same_draws_filtered_to_long_legs_and_refuses_bounds_nothing_meets(
+        planners: ModuleType, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    from tumblebot.sim.world import design as design_module
+    from tumblebot.sim.world.design import tumbling_designs
+
+    drawn = tumbling_designs(300, 29)
+    assert tumbling_designs(3, 29, reach_above=1.8) == [d for d in drawn if d.reach >= 1.8][:3]
+    assert tumbling_designs(3, 29, reach_below=1.361, reach_above=1.209) == [
+        d for d in drawn if 1.209 <= d.reach < 1.361][:3]
+    with pytest.raises(ValueError, match="must be below reach_below"):
+        tumbling_designs(3, 29, reach_below=1.3, reach_above=1.3)
+    monkeypatch.setattr(design_module, "MAX_DRAWS", 2000)
+    with pytest.raises(ValueError, match="too narrow"):
+        tumbling_designs(1, 29, reach_above=50.0)  # no leg in the bounds reaches 50 pivot radii
+    assert planners.main(["--controller", "plan", "--reach-above", "1.5", "--reach-below", "1.4"]) == 2
+    assert "--reach-above must be below --reach-below" in capsys.readouterr().err
+
+
+def test_that_a_controller_paired_with_itself_as_the_baseline_differs_by_exactly_zero(
+        planners: ModuleType, capsys: pytest.CaptureFixture[str]) -> None:
+    setting = "turn_tolerance=0.3;spin_steps_left=4"
+    assert planners.main(["--designs", "1", "--episodes", "2", "--workers", "1", "--reach-above", "1.4",
+                          "--baseline", setting, "--controller", setting, "--controller", "plan"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert f"the baseline {setting}" in out[0] and out[1].split()[6] == "base"
+    row = out[2].split()
+    assert float(row[4]) >= 1.4 and row[6:8] == ["+0.000", "±0.000"]
+    assert planners.main(["--controller", "plan", "--baseline", "bogus"]) == 2
+    assert "'bogus'" in capsys.readouterr().err
