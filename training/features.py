@@ -11,6 +11,8 @@ environments with the same :class:`ObservationContext` the deployed policy uses.
 
 from __future__ import annotations
 
+import copy
+from dataclasses import dataclass
 from typing import Any, cast
 
 import gymnasium as gym
@@ -188,6 +190,7 @@ class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndar
         self._tumbler: Any = cast(Any, env.unwrapped)  # a TumblerEnv: its design and episode length
         steps = int(self._tumbler.episode_steps)
         self.context = ObservationContext(layout, episode_steps=steps)
+        self._last = np.zeros(len(LAYOUTS[layout]), dtype=np.float32)  # the observation last returned
         high = np.full(len(LAYOUTS[layout]), 100.0, dtype=np.float32)
         self.observation_space = gym.spaces.Box(low=-high, high=high, dtype=np.float32)
 
@@ -195,8 +198,41 @@ class ContextObservation(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndar
               ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
         self.context.reset(self._tumbler.design.as_tuple())
-        return self.context(obs), info
+        self._last = self.context(obs)
+        return self._last, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        return self.context(obs), float(reward), bool(terminated or truncated), False, info
+        self._last = self.context(obs)
+        return self._last, float(reward), bool(terminated or truncated), False, info
+
+    @property
+    def episode_steps(self) -> int:
+        return int(self._tumbler.episode_steps)
+
+    # ------------------------------------------------- snapshots (planning, analysis)
+    def snapshot(self) -> ContextSnapshot:
+        """The simulation (:meth:`TumblerEnv.snapshot`) with the input's memory of the
+        episode and the observation last returned: :meth:`restore` brings back all three,
+        so a roll-out from it sees the inputs the episode would have. Free it with
+        :meth:`release`."""
+        return ContextSnapshot(self._tumbler.snapshot(), copy.deepcopy(self.context), self._last.copy())
+
+    def restore(self, snap: ContextSnapshot) -> np.ndarray:
+        """Return to ``snap`` (of this episode); returns the observation there."""
+        self._tumbler.restore(snap.simulation)
+        self.context = copy.deepcopy(snap.context)
+        self._last = snap.observation.copy()
+        return self._last.copy()
+
+    def release(self, snap: ContextSnapshot) -> None:
+        self._tumbler.release(snap.simulation)
+
+
+@dataclass(frozen=True)
+class ContextSnapshot:
+    """What :meth:`ContextObservation.snapshot` saves."""
+
+    simulation: Any  #: the :class:`TumblerEnv` snapshot
+    context: ObservationContext  #: the input's memory, having seen ``observation``
+    observation: np.ndarray  #: the observation last returned

@@ -30,6 +30,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from tumblebot.sim.control.goto import GotoController
 from tumblebot.sim.evaluation.pool import WorkerPool
-from tumblebot.sim.evaluation.rollout import GotoActor, drive, run_episode
+from tumblebot.sim.evaluation.rollout import GotoActor, branch, run_episode
 from tumblebot.sim.world.physics import PhysicsProfile
 from tumblebot.training.config import RewardWeights
 
@@ -94,11 +95,6 @@ def _worker(spec: WorkerSpec, student: str | None) -> _Worker:
     return _Worker(env, OnnxPolicy(Path(student)) if student else None, spec)
 
 
-def _finish(env: Any, goto: GotoController, obs: np.ndarray, step: int) -> float:
-    """Final R of the episode continued by ``goto`` (memory kept) from ``obs`` before ``step``."""
-    return float(drive(env, GotoActor(goto), obs, step)["final_R"])
-
-
 def _search(env: Any, goto: GotoController, obs: np.ndarray, step: int, draws: int = 0,
             seed: int = 0) -> tuple[int, int]:
     """The action whose episode, continued by ``goto``, ends with the best final R: in
@@ -117,15 +113,11 @@ def search_values(env: Any, goto: GotoController, obs: np.ndarray, step: int, dr
         for k, action in enumerate(ALL_ACTIONS):
             total = 0.0
             for draw in range(futures):
-                env.restore(snap)
-                if draws:
-                    env.reseed_motor_noise([seed, step, draw])
-                follower = copy.deepcopy(goto)
+                follower = copy.deepcopy(goto)  # goto's memory before the step, told the action taken
                 follower.act(obs, step)
                 follower.taken(action)
-                after, _, _, _, info = env.step(np.array(action))
-                total += (float(info["final_R"]) if step + 1 >= env.episode_steps
-                          else _finish(env, follower, after, step + 1))
+                reseed = partial(env.reseed_motor_noise, [seed, step, draw]) if draws else None
+                total += float(branch(env, snap, action, GotoActor(follower), step, reseed)["final_R"])
             values[k] = total / futures
         env.restore(snap)
     finally:

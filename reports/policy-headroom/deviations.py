@@ -34,7 +34,9 @@ from tqdm import tqdm
 
 from tumblebot.sim.control.features import DESIGN
 from tumblebot.sim.control.policy import OnnxPolicy, PolicyError
+from tumblebot.sim.evaluation import rollout
 from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.evaluation.rollout import PolicyActor, run_episode
 from tumblebot.sim.world.physics import THESIS
 from tumblebot.training.lookahead import ALL_ACTIONS
 
@@ -78,43 +80,42 @@ class Branch:
     inputs: np.ndarray  #: the policy's input there (its layout)
 
 
-def drive(worker: _Worker, seed: int, branch_at: set[int]) -> tuple[float, list[Branch]]:
-    """The policy's own episode of ``seed``: its final R, and a :class:`Branch` before
-    every step in ``branch_at`` (release their snapshots with :func:`deviate`)."""
-    env, policy = worker.env, worker.policy
-    obs, _ = env.reset(seed=seed)
-    policy.reset(env.design.as_tuple())
-    branches: list[Branch] = []
-    info: dict[str, Any] = {}
-    for k in range(env.episode_steps):
-        context = copy.deepcopy(policy.context) if k in branch_at else None  # the memory before this step
-        action = policy.act(obs)
+class _Recorder(PolicyActor):
+    """The policy, leaving a :class:`Branch` before each step in ``branch_at``."""
+
+    def __init__(self, env: Any, policy: OnnxPolicy, branch_at: set[int]) -> None:
+        super().__init__(policy)
+        self.env, self.branch_at = env, branch_at
+        self.branches: list[Branch] = []
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        context = copy.deepcopy(self.policy.context) if step in self.branch_at else None  # the memory before it
+        action = self.policy.act(obs)
         if context is not None:
             own = ALL_ACTIONS.index((int(action[0]), int(action[1])))
             inputs = copy.deepcopy(context)(obs)
-            branches.append(Branch(k, env.snapshot(), context, obs, own, inputs))
-        obs, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
-    return float(info["final_R"]), branches
+            self.branches.append(Branch(step, self.env.snapshot(), context, obs, own, inputs))
+        return action
+
+
+def drive(worker: _Worker, seed: int, branch_at: set[int]) -> tuple[float, list[Branch]]:
+    """The policy's own episode of ``seed``: its final R, and a :class:`Branch` before
+    every step in ``branch_at`` (release their snapshots with :func:`deviate`)."""
+    recorder = _Recorder(worker.env, worker.policy, branch_at)
+    return run_episode(worker.env, recorder, seed).final_R, recorder.branches
 
 
 def deviate(worker: _Worker, branch: Branch, action: int) -> float:
     """The final R of the episode from ``branch`` with ``action`` (index in
     :data:`ALL_ACTIONS`) at its step and the policy's own actions after; frees the branch's
     snapshot."""
-    env, policy = worker.env, worker.policy
+    policy = worker.policy
     try:
-        env.restore(branch.snapshot)
         policy.context = copy.deepcopy(branch.context)
         policy.context(branch.obs)  # the memory sees the state as in the episode; the action differs
-        obs, _, terminated, truncated, info = env.step(np.array(ALL_ACTIONS[action]))
-        for _ in range(branch.step + 1, env.episode_steps):
-            if terminated or truncated:
-                break
-            obs, _, terminated, truncated, info = env.step(policy.act(obs))
+        info = rollout.branch(worker.env, branch.snapshot, ALL_ACTIONS[action], PolicyActor(policy), branch.step)
     finally:
-        env.release(branch.snapshot)
+        worker.env.release(branch.snapshot)
     return float(info["final_R"])
 
 

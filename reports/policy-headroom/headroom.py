@@ -28,6 +28,7 @@ import numpy as np
 
 from tumblebot.sim.control.gaits import get_gait
 from tumblebot.sim.evaluation.evaluate import episode_seed
+from tumblebot.sim.evaluation.rollout import Actor, branch, drive, make_actor
 from tumblebot.sim.evaluation.stats import mean_ci95
 from tumblebot.sim.world.design import Design
 from tumblebot.sim.world.env import TumblerEnv
@@ -39,25 +40,22 @@ _env: dict[str, Any] = {}
 
 def _init(task: str, design: Design, base: str) -> None:
     _env["env"] = THESIS.make_env(task, design=design)
-    _env["gait"] = get_gait(base)
+    _env["base"], _env["task"] = base, task
 
 
-def _finish(env: TumblerEnv, step: int, rng: np.random.Generator) -> float:
-    """Drive the base gait from ``step`` to the end of the episode; the final-state R."""
-    gait = _env["gait"]
-    while True:
-        _, _, _, truncated, info = env.step(np.array(gait(step, rng)))
-        step += 1
-        if truncated:
-            return float(info["final_R"])
+def _base(seed: int) -> Actor:
+    """The base gait, its random draws (if any) started afresh from the episode's seed."""
+    actor = make_actor("gait", _env["base"], _env["task"])
+    actor.reset(seed, _env["env"].design.as_tuple())
+    return actor
 
 
 def _episode(job: tuple[int, int]) -> tuple[int, float, float, list[tuple[int, tuple[int, int]]]]:
     index, seed = job
     env: TumblerEnv = _env["env"]
-    env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed)
     start = env.snapshot()
-    base_R = _finish(env, 0, np.random.default_rng(seed))
+    base_R = float(drive(env, _base(seed), obs)["final_R"])
     env.restore(start)
     env.release(start)
     deviations: list[tuple[int, tuple[int, int]]] = []
@@ -66,15 +64,13 @@ def _episode(job: tuple[int, int]) -> tuple[int, float, float, list[tuple[int, t
         here = env.snapshot()
         best: tuple[float, tuple[int, int]] | None = None
         for action in ACTIONS:
-            env.restore(here)
-            _, _, _, truncated, info = env.step(np.array(action))
-            value = float(info["final_R"]) if truncated else _finish(env, step + 1, np.random.default_rng(seed))
+            value = float(branch(env, here, action, _base(seed), step)["final_R"])
             if best is None or value > best[0]:
                 best = (value, action)
         assert best is not None
         env.restore(here)
         env.release(here)
-        base_action = _env["gait"](step, np.random.default_rng(seed))
+        base_action = get_gait(_env["base"])(step, np.random.default_rng(seed))
         if best[1] != tuple(base_action):
             deviations.append((step, best[1]))
         _, _, _, _, info = env.step(np.array(best[1]))

@@ -22,7 +22,6 @@ the deterministic student drives ``--validation`` fixed episodes paired with the
 from __future__ import annotations
 
 import argparse
-import copy
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 import torch
 
 from tumblebot.sim.evaluation.pool import WorkerPool
+from tumblebot.sim.evaluation.rollout import branch
 from tumblebot.training.config import TrainConfig
 from tumblebot.training.imitation import joint_log_probs
 from tumblebot.training.lookahead import ALL_ACTIONS
@@ -70,13 +70,17 @@ def _own(policy: Any, obs: np.ndarray) -> tuple[int, np.ndarray]:
     return int(np.argmax(logits)), logits
 
 
-def _finish(env: Any, policy: Any, obs: np.ndarray, step: int) -> float:
-    info: dict[str, Any] = {}
-    for _ in range(step, env.unwrapped.episode_steps):
-        obs, _, terminated, truncated, info = env.step(np.array(ALL_ACTIONS[_own(policy, obs)[0]]))
-        if terminated or truncated:
-            break
-    return float(info["final_R"])
+class _Own:
+    """The student's most likely action (the deterministic policy)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+
+    def reset(self, seed: int, design: tuple[float, float, float, float]) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+        return np.array(ALL_ACTIONS[_own(self.policy, obs)[0]])
 
 
 Sample = tuple[np.ndarray, int, float, float, int]  #: input, other action, q(other), advantage, step
@@ -94,27 +98,24 @@ def group(worker: _Worker, job: tuple[int, int, str, int, float]) -> tuple[int, 
     steps = env.unwrapped.episode_steps
     chosen = set(rng.choice(steps, size=min(deviations, steps), replace=False).tolist())
     obs, _ = env.reset(seed=seed)
-    saved: dict[int, tuple[Any, Any, np.ndarray, int, np.ndarray]] = {}
+    saved: dict[int, tuple[Any, np.ndarray, int, np.ndarray]] = {}
     info: dict[str, Any] = {}
     for k in range(steps):
         own, logits = _own(policy, obs)
         if k in chosen:
-            saved[k] = (env.unwrapped.snapshot(), copy.deepcopy(env.context), obs, own, logits)
+            saved[k] = (env.snapshot(), obs, own, logits)  # the simulation and the input's memory
         obs, _, terminated, truncated, info = env.step(np.array(ALL_ACTIONS[own]))
         if terminated or truncated:
             break
     final = float(info["final_R"])
     samples: list[Sample] = []
-    for k, (snap, context, before, own, logits) in sorted(saved.items()):
+    for k, (snap, before, own, logits) in sorted(saved.items()):
         p = np.exp((logits - logits.max()) / temperature)
         others = np.array([i for i in range(len(ALL_ACTIONS)) if i != own])
         q = 0.5 * p[others] / p[others].sum() + 0.5 / len(others)
         pick = int(rng.choice(len(others), p=q / q.sum()))
-        env.unwrapped.restore(snap)
-        env.context = context
-        after, _, terminated, truncated, step_info = env.step(np.array(ALL_ACTIONS[int(others[pick])]))
-        result = (float(step_info["final_R"]) if terminated or truncated else _finish(env, policy, after, k + 1))
-        env.unwrapped.release(snap)
+        result = float(branch(env, snap, ALL_ACTIONS[int(others[pick])], _Own(policy), k)["final_R"])
+        env.release(snap)
         samples.append((before, int(others[pick]), float(q[pick]), result - final, k))
     return seed, final, samples
 

@@ -4,7 +4,8 @@
 loop that steps an environment through an episode: :mod:`tumblebot.sim.evaluation.evaluate`
 (one design, many episodes), :mod:`tumblebot.sim.evaluation.runner` (many designs, on the
 worker pool), the scripted episodes, the teacher's choice sweep and the imitation teacher
-(whose roll-outs from a snapshot call :func:`drive` mid-episode) all run on it. A
+all run on it; :func:`branch` continues an episode from a snapshot with another action at
+one step (the imitation teacher's search and the policy-headroom reports). A
 controller is made from its description (:class:`~tumblebot.sim.control.drivers.Driver`) by
 :func:`make_actor`; every kind answers ``reset(seed, design)`` at the start of an episode
 and ``act(obs, step)`` at each step, whatever it uses of them (a scripted gait only the
@@ -17,12 +18,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from tumblebot.sim.control.goto import GotoController, check_navigation_task, navigator
 from tumblebot.sim.errors import SimError
+
+if TYPE_CHECKING:
+    from tumblebot.sim.control.policy import OnnxPolicy
 
 Design4 = tuple[float, float, float, float]
 StepCallback = Callable[[int, np.ndarray, np.ndarray, dict[str, Any]], None]
@@ -34,11 +38,18 @@ class Actor(Protocol):
     def act(self, obs: np.ndarray, step: int) -> np.ndarray: ...
 
 
-class _PolicyActor:
-    def __init__(self, path: Path, task: str) -> None:
+class PolicyActor:
+    """An ONNX policy (:class:`~tumblebot.sim.control.policy.OnnxPolicy`): a file's, or
+    ``policy`` as it is (one mid-episode whose memory a roll-out from a snapshot keeps)."""
+
+    def __init__(self, policy: OnnxPolicy) -> None:
+        self.policy = policy
+
+    @classmethod
+    def from_file(cls, path: Path, task: str) -> PolicyActor:
         from tumblebot.sim.control.policy import OnnxPolicy
 
-        self.policy = OnnxPolicy(path, task=task)
+        return cls(OnnxPolicy(path, task=task))
 
     def reset(self, seed: int, design: Design4) -> None:
         self.policy.reset(design)
@@ -80,7 +91,7 @@ def make_actor(kind: str, name: str, task: str) -> Actor:
     """``kind`` ``"onnx"`` (``name`` a policy file), ``"gait"`` (a gait name) or ``"goto"``
     (``name`` a navigation controller: ``goto`` or ``plan``)."""
     if kind == "onnx":
-        return _PolicyActor(Path(name), task)
+        return PolicyActor.from_file(Path(name), task)
     if kind == "gait":
         return _GaitActor(name)
     if kind == "goto":
@@ -125,3 +136,20 @@ def drive(env: Any, actor: Actor, obs: np.ndarray, step: int = 0,
         if terminated or truncated:
             break
     return info
+
+
+def branch(env: Any, snapshot: Any, action: Any, actor: Actor, step: int,
+           before_step: Callable[[], None] | None = None) -> dict[str, Any]:
+    """The rest of an episode from ``snapshot`` (the simulation before step ``step``, taken
+    with ``env.snapshot()``): ``action`` at that step, then ``actor`` to the end (it is not
+    reset: the caller gives it the memory it had before the step, having seen ``action``
+    taken). ``before_step()``, if given, runs once the snapshot is restored (say, to draw
+    the motor noise to come anew). Returns the last step's ``info``; the snapshot stays
+    usable (the caller releases it)."""
+    env.restore(snapshot)
+    if before_step is not None:
+        before_step()
+    obs, _, terminated, truncated, info = env.step(np.asarray(action))
+    if terminated or truncated:
+        return dict(info)
+    return drive(env, actor, obs, step + 1)

@@ -716,3 +716,38 @@ def test_that_imitate_refuses_a_bad_learning_rate_before_writing(flag: str, valu
     assert status == 2
     assert re.search("learning.rate", capsys.readouterr().err)
     assert not run.exists()
+
+
+def test_that_a_wrapped_environments_snapshot_brings_back_the_inputs_memory_with_the_simulation() -> None:
+    from tumblebot.sim.evaluation.rollout import branch
+
+    env = ContextObservation(TumblerEnv(task="nav-flat", design=XI3), "tri-plan")
+    try:
+        obs, _ = env.reset(seed=4)
+        actions = [(2, 2), (2, 0), (2, 2), (0, 2), (2, 2), (1, 1)]
+        for action in actions[:3]:
+            obs, *_ = env.step(np.array(action))
+        snap = env.snapshot()
+        seen = [obs] + [env.step(np.array(a))[0] for a in actions[3:]]
+        assert np.array_equal(env.restore(snap), seen[0])
+        again = [env.step(np.array(a))[0] for a in actions[3:]]
+        for first, second in zip(seen[1:], again, strict=True):
+            np.testing.assert_array_equal(first, second)  # the memory fields too, not only the thesis's 9
+        assert env.episode_steps == 20
+
+        class Replay:
+            def reset(self, seed: int, design: tuple[float, float, float, float]) -> None:
+                pass
+
+            def act(self, obs: np.ndarray, step: int) -> np.ndarray:
+                return np.array((1, 1))
+
+        stopped = branch(env, snap, actions[3], Replay(), 3)
+        env.restore(snap)
+        env.step(np.array(actions[3]))
+        for _ in range(4, 19):
+            env.step(np.array((1, 1)))
+        assert env.step(np.array((1, 1)))[4]["final_R"] == stopped["final_R"]
+        env.release(snap)
+    finally:
+        env.close()
