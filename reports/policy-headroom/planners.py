@@ -189,11 +189,16 @@ def main(argv: list[str] | None = None) -> int:
           + ("" if base == "plan" else f"the baseline {args.baseline}: ")
           + f"{base}'s mean final R and each controller's difference (± s.e.)")
     print(f"{'design (x, y, z, l)':30s} {'l/r':>4s} {base:>6s}  " + "  ".join(f"{n:>18s}" for n in names))
+    try:
+        designs = tumbling_designs(args.designs, args.design_seed, args.reach_below, args.reach_above)
+    except ValueError as exc:
+        print(f"planners: {exc}", file=sys.stderr)
+        return 2
     rows = []
     with contextlib.ExitStack() as stack:  # --workers 1 runs in this process
         pool = (stack.enter_context(multiprocessing.get_context("forkserver").Pool(args.workers))
                 if args.workers > 1 else None)
-        for design in tumbling_designs(args.designs, args.design_seed, args.reach_below, args.reach_above):
+        for design in designs:
             jobs = [(args.task, design.as_tuple(), args.seed, i, [args.baseline, *names])
                     for i in range(args.episodes)]
             R = np.array(pool.map(_episode, jobs, chunksize=4) if pool is not None else [_episode(j) for j in jobs])

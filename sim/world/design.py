@@ -158,8 +158,10 @@ def tumbling_designs(count: int, seed: int, reach_below: float | None = None,
             out.append(design)
     else:
         if len(out) < count:
-            raise ValueError(f"only {len(out)} of {count} designs in {MAX_DRAWS} draws meet the reach bounds "
-                             f"(below {reach_below}, at least {reach_above}): the bounds are too narrow")
+            named = ((f"below {reach_below}", reach_below), (f"at least {reach_above}", reach_above))
+            bounds = " and ".join(text for text, bound in named if bound is not None)
+            raise ValueError(f"only {len(out)} of {count} designs in {MAX_DRAWS} draws can tumble and reach "
+                             f"{bounds} pivot radii: too few designs in the bounds qualify")
     return out
 
 

@@ -106,8 +106,10 @@ def test_that_reach_above_keeps_the_same_draws_filtered_to_long_legs_and_refuses
     with pytest.raises(ValueError, match="must be below reach_below"):
         tumbling_designs(3, 29, reach_below=1.3, reach_above=1.3)
     monkeypatch.setattr(design_module, "MAX_DRAWS", 2000)
-    with pytest.raises(ValueError, match="too narrow"):
+    with pytest.raises(ValueError, match=r"reach at least 50\.0 pivot radii: too few"):
         tumbling_designs(1, 29, reach_above=50.0)  # no leg in the bounds reaches 50 pivot radii
+    assert planners.main(["--controller", "plan", "--reach-above", "50"]) == 2
+    assert "planners: only 0 of 12 designs in 2000 draws" in capsys.readouterr().err
     assert planners.main(["--controller", "plan", "--reach-above", "1.5", "--reach-below", "1.4"]) == 2
     assert "--reach-above must be below --reach-below" in capsys.readouterr().err
 
