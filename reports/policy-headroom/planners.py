@@ -180,6 +180,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.reach_below is not None and args.reach_above is not None and args.reach_above >= args.reach_below:
         print("planners: --reach-above must be below --reach-below", file=sys.stderr)
         return 2
+    try:
+        designs = tumbling_designs(args.designs, args.design_seed, args.reach_below, args.reach_above)
+    except ValueError as exc:
+        print(f"planners: {exc}", file=sys.stderr)
+        return 2
     names = args.controller
     base = "plan" if args.baseline == "plan" else "base"
     print(f"{args.task}, {args.designs} designs drawn with seed {args.design_seed}"
@@ -189,11 +194,6 @@ def main(argv: list[str] | None = None) -> int:
           + ("" if base == "plan" else f"the baseline {args.baseline}: ")
           + f"{base}'s mean final R and each controller's difference (± s.e.)")
     print(f"{'design (x, y, z, l)':30s} {'l/r':>4s} {base:>6s}  " + "  ".join(f"{n:>18s}" for n in names))
-    try:
-        designs = tumbling_designs(args.designs, args.design_seed, args.reach_below, args.reach_above)
-    except ValueError as exc:
-        print(f"planners: {exc}", file=sys.stderr)
-        return 2
     rows = []
     with contextlib.ExitStack() as stack:  # --workers 1 runs in this process
         pool = (stack.enter_context(multiprocessing.get_context("forkserver").Pool(args.workers))

@@ -149,19 +149,18 @@ def tumbling_designs(count: int, seed: int, reach_below: float | None = None,
         raise ValueError(f"reach_above={reach_above} must be below reach_below={reach_below}: no design has both")
     rng = np.random.default_rng(seed)
     out: list[Design] = []
-    for _ in range(MAX_DRAWS):
-        if len(out) >= count:
-            break
-        design = Design.sample(rng)
-        if (design.can_tumble and (reach_below is None or design.reach < reach_below)
-                and (reach_above is None or design.reach >= reach_above)):
-            out.append(design)
-    else:
-        if len(out) < count:
+    draws = 0
+    while len(out) < count:
+        if draws == MAX_DRAWS:
             named = ((f"below {reach_below}", reach_below), (f"at least {reach_above}", reach_above))
             bounds = " and ".join(text for text, bound in named if bound is not None)
             raise ValueError(f"only {len(out)} of {count} designs in {MAX_DRAWS} draws can tumble and reach "
                              f"{bounds} pivot radii: too few designs in the bounds qualify")
+        draws += 1
+        design = Design.sample(rng)
+        if (design.can_tumble and (reach_below is None or design.reach < reach_below)
+                and (reach_above is None or design.reach >= reach_above)):
+            out.append(design)
     return out
 
 
